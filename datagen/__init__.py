@@ -1,0 +1,1 @@
+"""Dataset generation and the MCAP data lake (smgen)."""

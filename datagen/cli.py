@@ -1,0 +1,146 @@
+"""smgen: generate, list, describe and validate datasets of the smspace data lake."""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import click
+
+from datagen.errors import SmspaceError
+from datagen.lake.dataset import default_lake
+
+LAKE_OPTION = click.option(
+    "--lake",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Lake root folder [default: $SMSPACE_LAKE or data/lake].",
+)
+
+
+def fail(message: str, code: int = 2) -> None:
+    click.echo(f"{Path(sys.argv[0]).name}: error: {message}", err=True)
+    sys.exit(code)
+
+
+def friendly_errors(fn: Callable) -> Callable:
+    """Turn our own errors into one line on stderr and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except SmspaceError as e:
+            fail(str(e))
+
+    return wrapper
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="smspace")
+def main() -> None:
+    """Sensorimotor datasets in an MCAP data lake."""
+
+
+@main.command()
+@click.option("--setup", "setup_name", required=True, help="grid, grid6 (arm, arm6 with SAPIEN).")
+@click.option("--mode", required=True, help="MEM, MM, MME, or all.")
+@click.option(
+    "--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000]."
+)
+@click.option(
+    "--worlds", type=click.IntRange(min=1), default=1, help="Number of worlds; seeds SEED, SEED+1, …"
+)
+@click.option("--seed", type=click.IntRange(min=0), default=0, help="Seed of the first world.")
+@LAKE_OPTION
+@click.option(
+    "--workers", type=click.IntRange(min=1), default=1, help="Worker processes (bytes do not depend on it)."
+)
+@click.option("--shard-size", type=int, default=32768, show_default=True, help="Transitions per shard.")
+@click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
+@friendly_errors
+def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_size, overwrite) -> None:
+    """Generate datasets (resumable: re-running completes what is missing)."""
+    from datagen.generate import generate as run
+    from datagen.setups import MODES, check_mode, get_setup
+
+    setup = get_setup(setup_name)
+    modes = list(MODES) if mode == "all" else [check_mode(mode)]
+    n = setup.default_transitions if transitions is None else transitions
+    lake = lake or default_lake()
+    results = run(lake, setup.name, modes, range(seed, seed + worlds), n, shard_size, workers, overwrite)
+    for manifest, written in results:
+        click.echo(
+            f"{manifest.dataset_id}\t{lake / manifest.dataset_id}\t{'written' if written else 'exists'}"
+        )
+
+
+@main.command("ls")
+@LAKE_OPTION
+@click.option("--json", "as_json", is_flag=True, help="One JSON object per dataset.")
+@friendly_errors
+def ls_(lake, as_json) -> None:
+    """List the datasets of a lake (from its catalog)."""
+    from datagen.lake.catalog import read_catalog
+
+    lake = lake or default_lake()
+    if lake.exists() and not lake.is_dir():
+        raise SmspaceError(f"lake path {lake} is a file, not a folder")
+    rows = read_catalog(lake).to_pylist()
+    if as_json:
+        for row in rows:
+            click.echo(json.dumps(row))
+        return
+    click.echo(f"{'id':<28} {'setup':<6} {'mode':<4} {'seed':>5} {'transitions':>11} {'MB':>8}")
+    for r in rows:
+        click.echo(
+            f"{r['id']:<28} {r['setup']:<6} {r['mode']:<4} {r['world_seed']:>5} {r['transitions']:>11} "
+            f"{r['bytes'] / 1e6:>8.2f}"
+        )
+
+
+@main.command()
+@click.argument("dataset")
+@LAKE_OPTION
+@click.option("--json", "as_json", is_flag=True)
+@friendly_errors
+def info(dataset, lake, as_json) -> None:
+    """Describe one dataset (a folder or an id in the lake)."""
+    from datagen.lake.dataset import Dataset
+
+    ds = Dataset.open(dataset, lake)
+    summary = ds.manifest.summary() | {"path": str(ds.folder)}
+    if as_json:
+        click.echo(json.dumps(summary, indent=1))
+        return
+    for key, value in summary.items():
+        click.echo(f"{key:>22}: {value}")
+
+
+@main.command()
+@click.argument("datasets", nargs=-1, required=True)
+@LAKE_OPTION
+@friendly_errors
+def validate(datasets, lake) -> None:
+    """Check CRCs, counts, sha256, schema, values and the mode invariant; exit 1 on any problem."""
+    from datagen.lake.dataset import resolve_dataset
+    from datagen.lake.validate import validate_dataset
+
+    bad = False
+    for ref in datasets:
+        folder = resolve_dataset(ref, lake)
+        problems = validate_dataset(folder)
+        for p in problems:
+            click.echo(p)
+        if problems:
+            bad = True
+        else:
+            click.echo(f"{folder.name}: ok")
+    sys.exit(1 if bad else 0)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,251 @@
+"""Generate datasets into the lake: plan, write missing shards (in parallel), finalise.
+
+Shard i is a pure function of (config, i): its random stream comes from
+SeedSequence(world_seed, spawn_key=(1, mode, i)), so the bytes do not depend on the worker count
+or on which shards an interrupted run had already written.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import shutil
+import sys
+from collections.abc import Iterable
+from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+import schemas
+from datagen.errors import SmspaceError
+from datagen.lake.atomic import remove_partials, sha256_file, write_atomic
+from datagen.lake.catalog import check_lake, rebuild_catalog
+from datagen.lake.manifest import (
+    GENERATION,
+    MANIFEST,
+    REGULAR_FILE,
+    GenConfig,
+    Manifest,
+    load_manifest,
+    shard_name,
+)
+from datagen.lake.shards import Block, ShardReader, write_regular_sampling, write_shard
+from datagen.setups import MODES, World, draw_transitions, get_setup
+
+_WORLDS: dict[tuple[str, int], World] = {}
+
+
+def world_for(setup: str, seed: int) -> World:
+    """One world per (setup, seed) per process: building the SAPIEN room is not free."""
+    key = (setup, seed)
+    if key not in _WORLDS:
+        _WORLDS[key] = get_setup(setup).build(seed)
+    return _WORLDS[key]
+
+
+def shard_rng(cfg: GenConfig, i: int) -> np.random.Generator:
+    return np.random.default_rng(
+        np.random.SeedSequence(cfg.world_seed, spawn_key=(1, MODES.index(cfg.mode), i))
+    )
+
+
+def _stats(blocks: list[Block]) -> dict[str, list[float]]:
+    m = np.concatenate([b.transitions.m_t for b in blocks])
+    s = np.concatenate([b.transitions.s_t.reshape(len(b.transitions), -1) for b in blocks])
+    return {
+        "m_min": m.min(0).astype(float).tolist(),
+        "m_max": m.max(0).astype(float).tolist(),
+        "s_min": s.min(0).astype(float).tolist(),
+        "s_max": s.max(0).astype(float).tolist(),
+    }
+
+
+def write_one_shard(cfg: GenConfig, folder: Path, i: int) -> int:
+    world = world_for(cfg.setup, cfg.world_seed)
+    rng = shard_rng(cfg, i)
+    lo, hi = cfg.shard_range(i)
+    blocks = [
+        Block(start, draw_transitions(world, cfg.mode, rng, min(cfg.batch_size, hi - start)))
+        for start in range(lo, hi, cfg.batch_size)
+    ]
+    metadata = {
+        "dataset_id": cfg.dataset_id,
+        "shard_index": str(i),
+        "first_index": str(lo),
+        "transitions": str(hi - lo),
+        "config_hash": cfg.config_hash,
+        "stats": json.dumps(_stats(blocks)),
+    }
+    write_shard(folder / shard_name(i), blocks, metadata)
+    return hi - lo
+
+
+def _shard_is_good(path: Path, cfg: GenConfig) -> bool:
+    """A shard under its final name was renamed after a full write; check it belongs to cfg."""
+    try:
+        with ShardReader(path) as reader:
+            return reader.metadata().get("config_hash") == cfg.config_hash
+    except SmspaceError:
+        return False
+
+
+def _clear_dataset(folder: Path) -> None:
+    for pattern in (MANIFEST, GENERATION, REGULAR_FILE, "shard-*.mcap"):
+        for p in folder.glob(pattern):
+            p.unlink()
+    remove_partials(folder)
+
+
+def _recorded_hash(folder: Path) -> str | None:
+    for name in (MANIFEST, GENERATION):
+        path = folder / name
+        if path.exists():
+            try:
+                return json.loads(path.read_text())["config_hash"]
+            except (json.JSONDecodeError, KeyError, UnicodeDecodeError):
+                return "unreadable"
+    return None
+
+
+@dataclass
+class Plan:
+    cfg: GenConfig
+    folder: Path
+    todo: list[int]
+    complete: bool
+
+
+def plan_dataset(lake: Path, cfg: GenConfig, overwrite: bool) -> Plan:
+    folder = lake / cfg.dataset_id
+    if folder.exists() and not folder.is_dir():
+        raise SmspaceError(f"{folder} exists and is not a folder")
+    recorded = _recorded_hash(folder) if folder.exists() else None
+    if recorded is not None and recorded != cfg.config_hash:
+        if not overwrite:
+            raise SmspaceError(
+                f"dataset {cfg.dataset_id} in {lake} was generated with another config; "
+                "pass --overwrite to replace it, or choose another --lake"
+            )
+        _clear_dataset(folder)
+    elif recorded is not None and (folder / MANIFEST).exists():
+        return Plan(cfg, folder, [], complete=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        remove_partials(folder)
+    except OSError as e:
+        raise SmspaceError(f"cannot write to {folder}: {e.strerror or e}") from e
+    write_atomic(
+        folder / GENERATION, json.dumps({"config": cfg.to_dict(), "config_hash": cfg.config_hash}).encode()
+    )
+    todo = [i for i in range(cfg.n_shards) if not _shard_is_good(folder / shard_name(i), cfg)]
+    return Plan(cfg, folder, todo, complete=False)
+
+
+def _merge_stats(stats: list[dict[str, list[float]]]) -> dict[str, list[float]]:
+    out = {}
+    for key, fn in (("m_min", np.min), ("m_max", np.max), ("s_min", np.min), ("s_max", np.max)):
+        out[key] = fn(np.array([s[key] for s in stats], np.float64), axis=0).tolist()
+    return out
+
+
+def finalize_dataset(plan: Plan) -> Manifest:
+    cfg, folder = plan.cfg, plan.folder
+    world = world_for(cfg.setup, cfg.world_seed)
+    m_reg, p_reg = world.regular_sampling()
+    write_regular_sampling(folder / REGULAR_FILE, m_reg, p_reg)
+    shards, stats = [], []
+    for i in range(cfg.n_shards):
+        path = folder / shard_name(i)
+        with ShardReader(path) as reader:
+            stats.append(reader.stats())
+        lo, hi = cfg.shard_range(i)
+        shards.append(
+            {
+                "file": path.name,
+                "first_index": lo,
+                "transitions": hi - lo,
+                "bytes": path.stat().st_size,
+                "sha256": sha256_file(path),
+            }
+        )
+    reg = folder / REGULAR_FILE
+    manifest = Manifest(
+        dataset_id=cfg.dataset_id,
+        setup=cfg.setup,
+        mode=cfg.mode,
+        world_seed=cfg.world_seed,
+        transitions=cfg.transitions,
+        n_motor=world.n_motor,
+        sensor_shape=list(world.sensor_shape),
+        sensor_dtype=np.dtype(world.sensor_dtype).name,
+        schema_version=schemas.SCHEMA_VERSION,
+        config=cfg.to_dict(),
+        config_hash=cfg.config_hash,
+        shards=shards,
+        normalisation=_merge_stats(stats),
+        regular_sampling={
+            "file": REGULAR_FILE,
+            "count": len(m_reg),
+            "bytes": reg.stat().st_size,
+            "sha256": sha256_file(reg),
+        },
+    )
+    manifest.write(folder)
+    (folder / GENERATION).unlink(missing_ok=True)
+    return manifest
+
+
+def _run_tasks(tasks: list[tuple[GenConfig, Path, int]], workers: int) -> None:
+    total = sum(cfg.shard_range(i)[1] - cfg.shard_range(i)[0] for cfg, _, i in tasks)
+    with tqdm(
+        total=total, unit="tr", unit_scale=True, disable=None, file=sys.stderr, desc="generating"
+    ) as bar:
+        if workers <= 1 or len(tasks) <= 1:
+            for task in tasks:
+                bar.update(write_one_shard(*task))
+            return
+        ctx = multiprocessing.get_context("spawn")  # SAPIEN hangs in forked children
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            futures = [pool.submit(write_one_shard, *task) for task in tasks]
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                for f in done:
+                    bar.update(f.result())  # re-raises a worker's error here, after cleanup
+
+
+def generate(
+    lake: Path,
+    setup: str,
+    modes: Iterable[str],
+    world_seeds: Iterable[int],
+    transitions: int,
+    shard_size: int,
+    workers: int = 1,
+    overwrite: bool = False,
+) -> list[tuple[Manifest, bool]]:
+    """Generate (or complete) every (world, mode) dataset; returns (manifest, newly_written)."""
+    if transitions <= 0:
+        raise SmspaceError(f"--transitions must be positive, got {transitions}")
+    if shard_size <= 0:
+        raise SmspaceError(f"--shard-size must be positive, got {shard_size}")
+    get_setup(setup)
+    lake = check_lake(lake)
+    if shutil.disk_usage(lake).free < 64 << 20:
+        raise SmspaceError(f"less than 64 MiB free on the disk of {lake}")
+    configs = [
+        GenConfig(setup, mode, seed, transitions, shard_size) for seed in world_seeds for mode in modes
+    ]
+    plans = [plan_dataset(lake, cfg, overwrite) for cfg in configs]
+    _run_tasks([(p.cfg, p.folder, i) for p in plans for i in p.todo], workers)
+    results = []
+    for plan in plans:
+        if plan.complete:
+            results.append((load_manifest(plan.folder), False))
+        else:
+            results.append((finalize_dataset(plan), True))
+    rebuild_catalog(lake)
+    return results

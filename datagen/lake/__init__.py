@@ -1,0 +1,1 @@
+"""The MCAP data lake: shards, manifests, the catalog, reading and validation."""

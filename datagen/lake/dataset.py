@@ -1,0 +1,65 @@
+"""Open a dataset by folder or by id, and read it back into numpy."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from datagen.errors import SmspaceError
+from datagen.lake.manifest import MANIFEST, Manifest, load_manifest
+from datagen.lake.shards import Block, ShardReader
+from datagen.setups.base import Transitions
+
+DEFAULT_LAKE = Path("data/lake")
+
+
+def default_lake() -> Path:
+    return Path(os.environ.get("SMSPACE_LAKE", DEFAULT_LAKE))
+
+
+def resolve_dataset(ref: str | Path, lake: Path | None = None) -> Path:
+    """DATASET on the command line: a dataset folder, or an id in the lake."""
+    path = Path(ref)
+    if (path / MANIFEST).exists() or (path.is_dir() and any(path.glob("shard-*"))):
+        return path
+    candidate = Path(lake or default_lake()) / str(ref)
+    if candidate.is_dir():
+        return candidate
+    raise SmspaceError(
+        f"unknown dataset {str(ref)!r}: not a dataset folder, nor an id in lake {lake or default_lake()}"
+    )
+
+
+class Dataset:
+    """A complete dataset: its manifest and lazily opened shard readers."""
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+        self.manifest: Manifest = load_manifest(self.folder)
+
+    @classmethod
+    def open(cls, ref: str | Path, lake: Path | None = None) -> Dataset:
+        return cls(resolve_dataset(ref, lake))
+
+    def shard_paths(self) -> list[Path]:
+        return [self.folder / s["file"] for s in self.manifest.shards]
+
+    def blocks(self) -> Iterator[Block]:
+        for path in self.shard_paths():
+            with ShardReader(path) as reader:
+                yield from reader.blocks()
+
+    def read_all(self) -> Transitions:
+        """All transitions in index order, as numpy arrays (fits in memory for paper-sized sets)."""
+        parts = [b.transitions for b in self.blocks()]
+        if not parts:
+            raise SmspaceError(f"dataset {self.folder} has no transitions")
+        fields = Transitions.__dataclass_fields__
+        return Transitions(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in fields})
+
+    def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
+        with ShardReader(self.folder / self.manifest.regular_sampling["file"]) as reader:
+            return reader.regular_sampling()

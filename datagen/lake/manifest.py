@@ -1,0 +1,141 @@
+"""The per-dataset manifest: what was generated, how, and how to check and normalise it."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import platform
+from dataclasses import asdict, dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import schemas
+from datagen.errors import DatasetCorrupt, SmspaceError
+from datagen.lake.atomic import write_atomic
+
+MANIFEST = "manifest.json"
+GENERATION = "generation.json"  # present only while a generation is unfinished
+REGULAR_FILE = "regular.mcap"
+BATCH_SIZE = 1024
+
+
+@dataclass(frozen=True)
+class GenConfig:
+    """Everything a dataset's bytes depend on (the worker count is deliberately absent)."""
+
+    setup: str
+    mode: str
+    world_seed: int
+    transitions: int
+    shard_size: int
+    batch_size: int = BATCH_SIZE
+
+    @property
+    def dataset_id(self) -> str:
+        return f"{self.setup}-seed{self.world_seed}-{self.mode}"
+
+    @property
+    def n_shards(self) -> int:
+        return -(-self.transitions // self.shard_size)
+
+    def shard_range(self, i: int) -> tuple[int, int]:
+        lo = i * self.shard_size
+        return lo, min(lo + self.shard_size, self.transitions)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @property
+    def config_hash(self) -> str:
+        blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":")).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def shard_name(i: int) -> str:
+    return f"shard-{i:05d}.mcap"
+
+
+def software_versions() -> dict[str, str]:
+    names = ["smspace", "numpy", "mcap", "mcap-protobuf-support", "protobuf", "zstandard"]
+    versions = {"python": platform.python_version()}
+    for name in names:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = "unknown"
+    return versions
+
+
+@dataclass
+class Manifest:
+    dataset_id: str
+    setup: str
+    mode: str
+    world_seed: int
+    transitions: int
+    n_motor: int
+    sensor_shape: list[int]
+    sensor_dtype: str
+    schema_version: int
+    config: dict[str, Any]
+    config_hash: str
+    shards: list[dict[str, Any]]  # file, first_index, transitions, bytes, sha256
+    normalisation: dict[str, list[float]]  # m_min, m_max (over m_t), s_min, s_max (over s_t)
+    regular_sampling: dict[str, Any]  # file, count, bytes, sha256
+    software: dict[str, str] = field(default_factory=software_versions)
+
+    @property
+    def gen_config(self) -> GenConfig:
+        return GenConfig(**self.config)
+
+    @property
+    def total_bytes(self) -> int:
+        return sum(s["bytes"] for s in self.shards) + self.regular_sampling["bytes"]
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=1) + "\n"
+
+    def write(self, folder: Path) -> None:
+        write_atomic(folder / MANIFEST, self.to_json().encode())
+
+    def summary(self) -> dict[str, Any]:
+        """The short form shown by `smgen info --json`."""
+        return {
+            "id": self.dataset_id,
+            "setup": self.setup,
+            "mode": self.mode,
+            "world_seed": self.world_seed,
+            "transitions": self.transitions,
+            "shards": len(self.shards),
+            "bytes": self.total_bytes,
+            "schema_version": self.schema_version,
+            "n_motor": self.n_motor,
+            "sensor_shape": self.sensor_shape,
+            "sensor_dtype": self.sensor_dtype,
+            "regular_sampling_size": self.regular_sampling["count"],
+            "config_hash": self.config_hash,
+        }
+
+
+def load_manifest(folder: Path) -> Manifest:
+    path = folder / MANIFEST
+    try:
+        raw = json.loads(path.read_text())
+    except FileNotFoundError:
+        if (folder / GENERATION).exists():
+            raise SmspaceError(
+                f"dataset {folder} is incomplete (its generation did not finish): re-run it"
+            ) from None
+        raise SmspaceError(f"{folder} is not a dataset (no {MANIFEST})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DatasetCorrupt(f"corrupt manifest {path}: {e}") from e
+    version = raw.get("schema_version")
+    if version != schemas.SCHEMA_VERSION:
+        raise SmspaceError(
+            f"dataset {folder} has schema version {version}; this smspace reads version {schemas.SCHEMA_VERSION}"
+        )
+    try:
+        return Manifest(**raw)
+    except TypeError as e:
+        raise DatasetCorrupt(f"corrupt manifest {path}: {e}") from e

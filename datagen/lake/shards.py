@@ -1,0 +1,212 @@
+"""MCAP shards of column-wise transition batches, and the regular-sampling file.
+
+Every file embeds its protobuf schema (a FileDescriptorSet), so any MCAP tool can decode it.
+Each batch message is its own zstd chunk: the chunk index then addresses batches directly,
+which is what readers use to split work and to seek.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader, make_reader
+from mcap.writer import CompressionType, Writer
+from mcap_protobuf.schema import build_file_descriptor_set
+
+import schemas
+from datagen.errors import DatasetCorrupt, SmspaceError
+from datagen.lake.atomic import atomic_writer
+from datagen.setups.base import Transitions
+
+TRANSITIONS_TOPIC = "/transitions"
+REGULAR_TOPIC = "/regular_sampling"
+SHARD_METADATA = "smspace.shard"
+LIBRARY = "smspace"
+
+
+@dataclass(frozen=True)
+class Block:
+    """A decoded batch message: transitions first_index .. first_index + len(transitions) - 1."""
+
+    first_index: int
+    transitions: Transitions
+
+
+def _sensor_column(column: schemas.transitions_pb2.SensorColumn, s: np.ndarray) -> None:
+    if s.dtype == np.uint8:
+        column.uint8 = np.ascontiguousarray(s).tobytes()
+    else:
+        column.float32.values.extend(s.reshape(-1).astype(np.float32))
+
+
+def encode_batch(first_index: int, tr: Transitions) -> bytes:
+    msg = schemas.TransitionBatch(
+        schema_version=schemas.SCHEMA_VERSION,
+        first_index=first_index,
+        count=len(tr),
+        motor_dim=tr.m_t.shape[1],
+        sensor_shape=tr.s_t.shape[1:],
+    )
+    msg.m_t.extend(tr.m_t.reshape(-1))
+    msg.m_t1.extend(tr.m_t1.reshape(-1))
+    _sensor_column(msg.s_t, tr.s_t)
+    _sensor_column(msg.s_t1, tr.s_t1)
+    priv = msg.privileged
+    priv.p_t.extend(tr.p_t.reshape(-1))
+    priv.p_t1.extend(tr.p_t1.reshape(-1))
+    priv.shift_t.extend(tr.shift_t.reshape(-1))
+    priv.shift_t1.extend(tr.shift_t1.reshape(-1))
+    return msg.SerializeToString()
+
+
+def _sensor_array(column: schemas.transitions_pb2.SensorColumn, shape: tuple[int, ...]) -> np.ndarray:
+    kind = column.WhichOneof("values")
+    if kind == "uint8":
+        return np.frombuffer(column.uint8, np.uint8).reshape(shape)
+    if kind == "float32":
+        return np.array(column.float32.values, np.float32).reshape(shape)
+    raise ValueError("sensor column is empty")
+
+
+def decode_batch(data: bytes) -> Block:
+    msg = schemas.TransitionBatch.FromString(data)
+    if msg.schema_version != schemas.SCHEMA_VERSION:
+        raise ValueError(f"batch of schema version {msg.schema_version}")
+    n, nm = msg.count, msg.motor_dim
+    shape = (n, *msg.sensor_shape)
+    priv = msg.privileged
+
+    def f32(values, width: int) -> np.ndarray:
+        return np.array(values, np.float32).reshape(n, width)
+
+    tr = Transitions(
+        m_t=f32(msg.m_t, nm),
+        m_t1=f32(msg.m_t1, nm),
+        s_t=_sensor_array(msg.s_t, shape),
+        s_t1=_sensor_array(msg.s_t1, shape),
+        p_t=f32(priv.p_t, 2),
+        p_t1=f32(priv.p_t1, 2),
+        shift_t=f32(priv.shift_t, 2),
+        shift_t1=f32(priv.shift_t1, 2),
+    )
+    return Block(msg.first_index, tr)
+
+
+def _start_writer(fh, schema_name: str, message_class, topic: str) -> tuple[Writer, int]:
+    # chunk_size=1: every message closes its own chunk, so the chunk index addresses batches.
+    writer = Writer(fh, compression=CompressionType.ZSTD, chunk_size=1)
+    writer.start(profile="", library=LIBRARY)
+    fds = build_file_descriptor_set(message_class).SerializeToString()
+    schema_id = writer.register_schema(schema_name, "protobuf", fds)
+    channel_id = writer.register_channel(topic, "protobuf", schema_id)
+    return writer, channel_id
+
+
+def write_shard(path: Path, blocks: Sequence[Block], metadata: dict[str, str]) -> None:
+    """Write a shard under a temporary name and rename it only once complete."""
+    with atomic_writer(path) as fh:
+        writer, channel = _start_writer(
+            fh, schemas.TRANSITION_BATCH, schemas.TransitionBatch, TRANSITIONS_TOPIC
+        )
+        writer.add_metadata(SHARD_METADATA, metadata)
+        for seq, block in enumerate(blocks):
+            t = block.first_index  # log_time = transition index, so time ranges select transitions
+            writer.add_message(
+                channel, log_time=t, publish_time=t, data=encode_batch(t, block.transitions), sequence=seq
+            )
+        writer.finish()
+
+
+def write_regular_sampling(path: Path, m: np.ndarray, p: np.ndarray) -> None:
+    msg = schemas.RegularSampling(schema_version=schemas.SCHEMA_VERSION, count=len(m), motor_dim=m.shape[1])
+    msg.m.extend(m.astype(np.float32).reshape(-1))
+    msg.p.extend(p.astype(np.float32).reshape(-1))
+    with atomic_writer(path) as fh:
+        writer, channel = _start_writer(fh, schemas.REGULAR_SAMPLING, schemas.RegularSampling, REGULAR_TOPIC)
+        writer.add_message(channel, log_time=0, publish_time=0, data=msg.SerializeToString(), sequence=0)
+        writer.finish()
+
+
+class ShardReader:
+    """Reads one shard; keep one open per shard and worker (re-reading the summary is costly)."""
+
+    def __init__(self, path: Path, validate_crcs: bool = True):
+        self.path = Path(path)
+        try:
+            self._fh = open(self.path, "rb")
+        except FileNotFoundError:
+            raise SmspaceError(f"missing shard {self.path}") from None
+        try:
+            self._reader: SeekingReader = make_reader(self._fh, validate_crcs=validate_crcs)
+            summary = self._reader.get_summary()
+        except (McapError, ValueError, EOFError, OSError) as e:
+            self._fh.close()
+            raise DatasetCorrupt(f"corrupt shard {self.path}: {e}") from e
+        if summary is None:
+            self._fh.close()
+            raise DatasetCorrupt(f"corrupt shard {self.path}: no summary (truncated?)")
+        self.summary = summary
+        names = {s.name for s in summary.schemas.values()}
+        if names != {schemas.TRANSITION_BATCH} and names != {schemas.REGULAR_SAMPLING}:
+            self._fh.close()
+            raise SmspaceError(
+                f"shard {self.path} has schema {', '.join(sorted(names))}; "
+                f"this smspace reads schema version {schemas.SCHEMA_VERSION} ({schemas.PACKAGE})"
+            )
+        # Batch start indices in file order, from the chunk index: no decompression needed.
+        self.batch_starts = [c.message_start_time for c in summary.chunk_indexes]
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> ShardReader:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def metadata(self) -> dict[str, str]:
+        try:
+            for record in self._reader.iter_metadata():
+                if record.name == SHARD_METADATA:
+                    return dict(record.metadata)
+        except (McapError, ValueError, EOFError) as e:
+            raise DatasetCorrupt(f"corrupt shard {self.path}: {e}") from e
+        return {}
+
+    def stats(self) -> dict[str, list[float]]:
+        return json.loads(self.metadata().get("stats", "{}"))
+
+    def _raw(self, starting_at: int | None = None, ending_before: int | None = None) -> Iterator[bytes]:
+        try:
+            for _, _, message in self._reader.iter_messages(
+                log_time_order=False, starting_at=starting_at, ending_before=ending_before
+            ):
+                yield message.data
+        except (McapError, ValueError, EOFError, OSError) as e:
+            raise DatasetCorrupt(f"corrupt shard {self.path}: {e}") from e
+
+    def blocks(self, starting_at: int | None = None, ending_before: int | None = None) -> Iterator[Block]:
+        """Decoded batches in file order, optionally only those starting in [starting_at, ending_before)."""
+        for data in self._raw(starting_at, ending_before):
+            try:
+                yield decode_batch(data)
+            except Exception as e:  # a message that does not parse is corruption, whatever protobuf says
+                raise DatasetCorrupt(f"corrupt shard {self.path}: undecodable batch ({e})") from e
+
+    def block_at(self, first_index: int) -> Block:
+        for block in self.blocks(first_index, first_index + 1):
+            return block
+        raise DatasetCorrupt(f"corrupt shard {self.path}: no batch starts at transition {first_index}")
+
+    def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
+        for data in self._raw():
+            msg = schemas.RegularSampling.FromString(data)
+            m = np.array(msg.m, np.float32).reshape(msg.count, msg.motor_dim)
+            return m, np.array(msg.p, np.float32).reshape(msg.count, 2)
+        raise DatasetCorrupt(f"corrupt regular sampling {self.path}: no message")

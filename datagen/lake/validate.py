@@ -1,0 +1,154 @@
+"""`smgen validate`: check a dataset against its manifest, the schema and its mode's invariant."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+import schemas
+from datagen.errors import SmspaceError
+from datagen.lake.atomic import sha256_file
+from datagen.lake.manifest import load_manifest
+from datagen.lake.shards import ShardReader
+from datagen.setups import get_setup
+
+
+class _ModeCheck:
+    """Accumulates what the mode invariant needs over all shards (SPEC 1)."""
+
+    def __init__(self, mode: str):
+        self.mode = mode
+        self.first_shift: np.ndarray | None = None
+        self.n = 0
+        self.equal = 0
+        self.sums = np.zeros((5, 2))  # Σa, Σb, Σa², Σb², Σab per axis (MEM independence)
+
+    def add(self, shift_t: np.ndarray, shift_t1: np.ndarray) -> str | None:
+        if self.first_shift is None and len(shift_t):
+            self.first_shift = shift_t[0].copy()
+        same = np.all(shift_t == shift_t1, axis=1)
+        if self.mode == "MM" and (not same.all() or not np.all(shift_t == self.first_shift)):
+            return "MM shift is not one constant value"
+        if self.mode == "MME" and not same.all():
+            return f"MME shift_t != shift_t1 in {int((~same).sum())} transitions"
+        a, b = shift_t.astype(np.float64), shift_t1.astype(np.float64)
+        self.sums += np.stack([a.sum(0), b.sum(0), (a * a).sum(0), (b * b).sum(0), (a * b).sum(0)])
+        self.n += len(a)
+        self.equal += int(same.sum())
+        return None
+
+    def finish(self) -> str | None:
+        if self.mode != "MEM" or self.n < 2:
+            return None
+        sa, sb, saa, sbb, sab = self.sums / self.n
+        corr = (sab - sa * sb) / np.sqrt(np.maximum((saa - sa**2) * (sbb - sb**2), 1e-30))
+        limit = max(0.05, 5 / np.sqrt(self.n))
+        if np.any(np.abs(corr) > limit) or self.equal / self.n > 0.05:
+            return (
+                f"MEM shifts are not independent (correlation {np.round(corr, 3).tolist()}, "
+                f"{self.equal}/{self.n} transitions with shift_t == shift_t1)"
+            )
+        return None
+
+
+def _batch_problems(tr, bound: float, mode: str) -> list[str]:
+    problems = []
+    for name in ("m_t", "m_t1", "s_t", "s_t1", "p_t", "p_t1", "shift_t", "shift_t1"):
+        arr = getattr(tr, name)
+        if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+            problems.append(f"{name} has NaN or inf")
+    for name in ("m_t", "m_t1"):
+        arr = getattr(tr, name)
+        if np.any(np.abs(arr) > 1.0):
+            problems.append(f"{name} outside [-1, 1]")
+    if mode != "MM":
+        for name in ("shift_t", "shift_t1"):
+            if np.any(np.abs(getattr(tr, name)) > bound):
+                problems.append(f"{name} outside ±{bound}")
+    return problems
+
+
+def validate_dataset(folder: Path) -> list[str]:
+    """Every problem found, one line each, naming the file; empty when the dataset is sound."""
+    folder = Path(folder)
+    try:
+        manifest = load_manifest(folder)
+    except SmspaceError as e:
+        return [str(e)]
+    setup = get_setup(manifest.setup)
+    problems: list[str] = []
+    mode_check = _ModeCheck(manifest.mode)
+    expected_index = 0
+    for shard in manifest.shards:
+        path = folder / shard["file"]
+        where = f"{folder.name}/{shard['file']}"
+        if not path.exists():
+            problems.append(f"{where}: missing")
+            continue
+        size = path.stat().st_size
+        if size != shard["bytes"]:
+            problems.append(f"{where}: {size} bytes, manifest says {shard['bytes']} (truncated or replaced)")
+        if sha256_file(path) != shard["sha256"]:
+            problems.append(f"{where}: sha256 differs from the manifest")
+        expected_index = shard["first_index"]
+        count = 0
+        try:
+            with ShardReader(path) as reader:
+                for block in reader.blocks():
+                    tr = block.transitions
+                    if block.first_index != expected_index:
+                        problems.append(
+                            f"{where}: batch starts at {block.first_index}, expected {expected_index}"
+                        )
+                    if tr.m_t.shape[1] != manifest.n_motor or list(tr.s_t.shape[1:]) != manifest.sensor_shape:
+                        problems.append(f"{where}: batch shapes differ from the manifest")
+                    expected_index = block.first_index + len(tr)
+                    count += len(tr)
+                    problems += [
+                        f"{where}: {p}" for p in _batch_problems(tr, setup.shift_bound, manifest.mode)
+                    ]
+                    issue = mode_check.add(tr.shift_t, tr.shift_t1)
+                    if issue:
+                        problems.append(f"{where}: {issue}")
+        except SmspaceError as e:
+            problems.append(f"{where}: {e}")
+            continue
+        if count != shard["transitions"]:
+            problems.append(f"{where}: {count} transitions, manifest says {shard['transitions']}")
+    total = sum(s["transitions"] for s in manifest.shards)
+    if total != manifest.transitions:
+        problems.append(
+            f"{folder.name}: shards hold {total} transitions, manifest says {manifest.transitions}"
+        )
+    issue = mode_check.finish()
+    if issue:
+        problems.append(f"{folder.name}: {issue}")
+    problems += _regular_problems(folder, manifest)
+    if manifest.schema_version != schemas.SCHEMA_VERSION:
+        problems.append(f"{folder.name}: schema version {manifest.schema_version}")
+    return _dedupe(problems)
+
+
+def _regular_problems(folder: Path, manifest) -> list[str]:
+    reg = manifest.regular_sampling
+    path = folder / reg["file"]
+    where = f"{folder.name}/{reg['file']}"
+    if not path.exists():
+        return [f"{where}: missing"]
+    if sha256_file(path) != reg["sha256"]:
+        return [f"{where}: sha256 differs from the manifest"]
+    try:
+        with ShardReader(path) as reader:
+            m, _ = reader.regular_sampling()
+    except SmspaceError as e:
+        return [f"{where}: {e}"]
+    return [] if len(m) == reg["count"] else [f"{where}: {len(m)} samples, manifest says {reg['count']}"]
+
+
+def _dedupe(lines: list[str]) -> list[str]:
+    """Repeated per-batch findings collapse to one line each."""
+    seen: dict[str, None] = {}
+    for line in lines:
+        seen.setdefault(line, None)
+    return list(seen)

@@ -1,0 +1,51 @@
+"""The registry of setups (SPEC 2): name → how to build a world and what it looks like."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from datagen.errors import SmspaceError
+from datagen.setups.base import MODES, Transitions, World, draw_transitions
+
+
+@dataclass(frozen=True)
+class Setup:
+    name: str
+    n_motor: int
+    default_transitions: int
+    shift_bound: float  # |shift component| ≤ shift_bound (the MM shift may sit outside: it is fixed)
+    integer_positions: bool
+    build: Callable[[int], World]
+    description: str
+
+
+def _grid(n_motor: int) -> Callable[[int], World]:
+    def build(seed: int) -> World:
+        from datagen.setups.grid import GridWorld
+
+        return GridWorld(seed, n_motor)
+
+    return build
+
+
+SETUPS: dict[str, Setup] = {
+    "grid": Setup("grid", 3, 150_000, 10.0, True, _grid(3), "10×10 torus, 3 motors, 4 sensors (SPEC 2.1)"),
+    "grid6": Setup("grid6", 6, 150_000, 10.0, True, _grid(6), "10×10 torus, 6 mixed motors (SPEC 2.2)"),
+}
+
+
+def get_setup(name: str) -> Setup:
+    try:
+        return SETUPS[name]
+    except KeyError:
+        raise SmspaceError(f"unknown setup {name!r} (choose from {', '.join(SETUPS)})") from None
+
+
+def check_mode(mode: str) -> str:
+    if mode not in MODES:
+        raise SmspaceError(f"unknown mode {mode!r} (choose from {', '.join(MODES)} or all)")
+    return mode
+
+
+__all__ = ["MODES", "SETUPS", "Setup", "Transitions", "World", "check_mode", "draw_transitions", "get_setup"]

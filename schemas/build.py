@@ -1,0 +1,30 @@
+"""Regenerate transitions_pb2.py from transitions.proto (needs grpcio-tools, a dev dependency).
+
+The .proto is the source of truth; the generated module is committed so that users need no
+protobuf compiler, and tests/test_schemas.py fails when the two drift apart.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def generate(out_dir: Path) -> None:
+    from grpc_tools import protoc
+
+    args = [
+        "protoc",
+        f"-I{HERE}",
+        f"--python_out={out_dir}",
+        f"--pyi_out={out_dir}",
+        str(HERE / "transitions.proto"),
+    ]
+    if protoc.main(args) != 0:
+        raise SystemExit("protoc failed")
+
+
+if __name__ == "__main__":
+    generate(Path(sys.argv[1]) if len(sys.argv) > 1 else HERE)
