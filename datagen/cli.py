@@ -48,17 +48,11 @@ def main() -> None:
 @main.command()
 @click.option("--setup", "setup_name", required=True, help="grid, grid6 (arm, arm6 with SAPIEN).")
 @click.option("--mode", required=True, help="MEM, MM, MME, or all.")
-@click.option(
-    "--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000]."
-)
-@click.option(
-    "--worlds", type=click.IntRange(min=1), default=1, help="Number of worlds; seeds SEED, SEED+1, …"
-)
+@click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
+@click.option("--worlds", type=click.IntRange(min=1), default=1, help="Number of worlds; seeds SEED, SEED+1, …")
 @click.option("--seed", type=click.IntRange(min=0), default=0, help="Seed of the first world.")
 @LAKE_OPTION
-@click.option(
-    "--workers", type=click.IntRange(min=1), default=1, help="Worker processes (bytes do not depend on it)."
-)
+@click.option("--workers", type=click.IntRange(min=1), default=1, help="Worker processes (bytes do not depend on it).")
 @click.option("--shard-size", type=int, default=32768, show_default=True, help="Transitions per shard.")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
 @friendly_errors
@@ -73,9 +67,7 @@ def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_s
     lake = lake or default_lake()
     results = run(lake, setup.name, modes, range(seed, seed + worlds), n, shard_size, workers, overwrite)
     for manifest, written in results:
-        click.echo(
-            f"{manifest.dataset_id}\t{lake / manifest.dataset_id}\t{'written' if written else 'exists'}"
-        )
+        click.echo(f"{manifest.dataset_id}\t{lake / manifest.dataset_id}\t{'written' if written else 'exists'}")
 
 
 @main.command("ls")

@@ -47,9 +47,7 @@ def world_for(setup: str, seed: int) -> World:
 
 
 def shard_rng(cfg: GenConfig, i: int) -> np.random.Generator:
-    return np.random.default_rng(
-        np.random.SeedSequence(cfg.world_seed, spawn_key=(1, MODES.index(cfg.mode), i))
-    )
+    return np.random.default_rng(np.random.SeedSequence(cfg.world_seed, spawn_key=(1, MODES.index(cfg.mode), i)))
 
 
 def _stats(blocks: list[Block]) -> dict[str, list[float]]:
@@ -137,9 +135,7 @@ def plan_dataset(lake: Path, cfg: GenConfig, overwrite: bool) -> Plan:
         remove_partials(folder)
     except OSError as e:
         raise SmspaceError(f"cannot write to {folder}: {e.strerror or e}") from e
-    write_atomic(
-        folder / GENERATION, json.dumps({"config": cfg.to_dict(), "config_hash": cfg.config_hash}).encode()
-    )
+    write_atomic(folder / GENERATION, json.dumps({"config": cfg.to_dict(), "config_hash": cfg.config_hash}).encode())
     todo = [i for i in range(cfg.n_shards) if not _shard_is_good(folder / shard_name(i), cfg)]
     return Plan(cfg, folder, todo, complete=False)
 
@@ -200,9 +196,7 @@ def finalize_dataset(plan: Plan) -> Manifest:
 
 def _run_tasks(tasks: list[tuple[GenConfig, Path, int]], workers: int) -> None:
     total = sum(cfg.shard_range(i)[1] - cfg.shard_range(i)[0] for cfg, _, i in tasks)
-    with tqdm(
-        total=total, unit="tr", unit_scale=True, disable=None, file=sys.stderr, desc="generating"
-    ) as bar:
+    with tqdm(total=total, unit="tr", unit_scale=True, disable=None, file=sys.stderr, desc="generating") as bar:
         if workers <= 1 or len(tasks) <= 1:
             for task in tasks:
                 bar.update(write_one_shard(*task))
@@ -236,9 +230,7 @@ def generate(
     lake = check_lake(lake)
     if shutil.disk_usage(lake).free < 64 << 20:
         raise SmspaceError(f"less than 64 MiB free on the disk of {lake}")
-    configs = [
-        GenConfig(setup, mode, seed, transitions, shard_size) for seed in world_seeds for mode in modes
-    ]
+    configs = [GenConfig(setup, mode, seed, transitions, shard_size) for seed in world_seeds for mode in modes]
     plans = [plan_dataset(lake, cfg, overwrite) for cfg in configs]
     _run_tasks([(p.cfg, p.folder, i) for p in plans for i in p.todo], workers)
     results = []

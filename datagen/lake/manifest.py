@@ -124,9 +124,7 @@ def load_manifest(folder: Path) -> Manifest:
         raw = json.loads(path.read_text())
     except FileNotFoundError:
         if (folder / GENERATION).exists():
-            raise SmspaceError(
-                f"dataset {folder} is incomplete (its generation did not finish): re-run it"
-            ) from None
+            raise SmspaceError(f"dataset {folder} is incomplete (its generation did not finish): re-run it") from None
         raise SmspaceError(f"{folder} is not a dataset (no {MANIFEST})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DatasetCorrupt(f"corrupt manifest {path}: {e}") from e

@@ -110,9 +110,7 @@ def _start_writer(fh, schema_name: str, message_class, topic: str) -> tuple[Writ
 def write_shard(path: Path, blocks: Sequence[Block], metadata: dict[str, str]) -> None:
     """Write a shard under a temporary name and rename it only once complete."""
     with atomic_writer(path) as fh:
-        writer, channel = _start_writer(
-            fh, schemas.TRANSITION_BATCH, schemas.TransitionBatch, TRANSITIONS_TOPIC
-        )
+        writer, channel = _start_writer(fh, schemas.TRANSITION_BATCH, schemas.TransitionBatch, TRANSITIONS_TOPIC)
         writer.add_metadata(SHARD_METADATA, metadata)
         for seq, block in enumerate(blocks):
             t = block.first_index  # log_time = transition index, so time ranges select transitions
@@ -138,7 +136,7 @@ class ShardReader:
     def __init__(self, path: Path, validate_crcs: bool = True):
         self.path = Path(path)
         try:
-            self._fh = open(self.path, "rb")
+            self._fh = open(self.path, "rb")  # noqa: SIM115 - closed by close()/__exit__
         except FileNotFoundError:
             raise SmspaceError(f"missing shard {self.path}") from None
         try:

@@ -98,16 +98,12 @@ def validate_dataset(folder: Path) -> list[str]:
                 for block in reader.blocks():
                     tr = block.transitions
                     if block.first_index != expected_index:
-                        problems.append(
-                            f"{where}: batch starts at {block.first_index}, expected {expected_index}"
-                        )
+                        problems.append(f"{where}: batch starts at {block.first_index}, expected {expected_index}")
                     if tr.m_t.shape[1] != manifest.n_motor or list(tr.s_t.shape[1:]) != manifest.sensor_shape:
                         problems.append(f"{where}: batch shapes differ from the manifest")
                     expected_index = block.first_index + len(tr)
                     count += len(tr)
-                    problems += [
-                        f"{where}: {p}" for p in _batch_problems(tr, setup.shift_bound, manifest.mode)
-                    ]
+                    problems += [f"{where}: {p}" for p in _batch_problems(tr, setup.shift_bound, manifest.mode)]
                     issue = mode_check.add(tr.shift_t, tr.shift_t1)
                     if issue:
                         problems.append(f"{where}: {issue}")
@@ -118,9 +114,7 @@ def validate_dataset(folder: Path) -> list[str]:
             problems.append(f"{where}: {count} transitions, manifest says {shard['transitions']}")
     total = sum(s["transitions"] for s in manifest.shards)
     if total != manifest.transitions:
-        problems.append(
-            f"{folder.name}: shards hold {total} transitions, manifest says {manifest.transitions}"
-        )
+        problems.append(f"{folder.name}: shards hold {total} transitions, manifest says {manifest.transitions}")
     issue = mode_check.finish()
     if issue:
         problems.append(f"{folder.name}: {issue}")
