@@ -2,44 +2,17 @@
 
 from __future__ import annotations
 
-import functools
 import json
 import sys
-from collections.abc import Callable
-from pathlib import Path
 
 import click
 
+from datagen.cliutil import LAKE_OPTION, friendly_errors
 from datagen.errors import SmspaceError
 from datagen.lake.dataset import default_lake
 
-LAKE_OPTION = click.option(
-    "--lake",
-    type=click.Path(path_type=Path),
-    default=None,
-    help="Lake root folder [default: $SMSPACE_LAKE or data/lake].",
-)
 
-
-def fail(message: str, code: int = 2) -> None:
-    click.echo(f"{Path(sys.argv[0]).name}: error: {message}", err=True)
-    sys.exit(code)
-
-
-def friendly_errors(fn: Callable) -> Callable:
-    """Turn our own errors into one line on stderr and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except SmspaceError as e:
-            fail(str(e))
-
-    return wrapper
-
-
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(name="smgen", context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="smspace")
 def main() -> None:
     """Sensorimotor datasets in an MCAP data lake."""

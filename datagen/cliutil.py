@@ -1,0 +1,39 @@
+"""What smgen and smtrain share: one-line errors with exit code 2, and common options."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import click
+
+from datagen.errors import SmspaceError
+
+LAKE_OPTION = click.option(
+    "--lake",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Lake root folder [default: $SMSPACE_LAKE or data/lake].",
+)
+
+
+def fail(message: str, code: int = 2) -> None:
+    prog = click.get_current_context(silent=True)
+    name = prog.find_root().info_name if prog else Path(sys.argv[0]).name
+    click.echo(f"{name}: error: {message}", err=True)
+    sys.exit(code)
+
+
+def friendly_errors(fn: Callable) -> Callable:
+    """Our own errors become one line on stderr and exit code 2, never a traceback."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except SmspaceError as e:
+            fail(str(e))
+
+    return wrapper

@@ -1,0 +1,38 @@
+"""Shared helpers: run the CLIs in-process or as real subprocesses, and tiny generated lakes."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "data" / "samples"
+BIN = Path(sys.executable).parent
+
+
+def smgen(*args: str):
+    from datagen.cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args], prog_name="smgen")
+
+
+def run_cmd(*args: str, timeout: float = 120, **kwargs) -> subprocess.CompletedProcess:
+    """Run a console script of this environment as a real process."""
+    cmd = [str(BIN / args[0]), *map(str, args[1:])]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, **kwargs)
+
+
+@pytest.fixture(scope="session")
+def grid_lake(tmp_path_factory) -> Path:
+    """Three modes of one grid world, 6000 transitions in 3 shards: read-only for tests."""
+    lake = tmp_path_factory.mktemp("grid_lake")
+    result = smgen("generate", "--setup", "grid", "--mode", "all", "--transitions", 6000, "--shard-size", 2500,
+                   "--seed", 3, "--lake", lake)
+    assert result.exit_code == 0, result.output
+    return lake

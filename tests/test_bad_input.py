@@ -1,0 +1,156 @@
+"""Bad input: one clear line, exit 2, nothing written; broken shards are named."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from mcap.writer import CompressionType, Writer
+from mcap_protobuf.schema import build_file_descriptor_set
+
+import schemas
+from datagen.errors import SmspaceError
+from datagen.lake.dataset import Dataset
+
+from .conftest import smgen
+
+
+def one_error_line(result) -> str:
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("smgen: error: "), result.output
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--setup", "cube", "--mode", "MM"], "unknown setup 'cube'"),
+        (["--setup", "grid", "--mode", "XM"], "unknown mode 'XM'"),
+        (["--setup", "grid", "--mode", "MM", "--transitions", "0"], "--transitions must be positive"),
+        (["--setup", "grid", "--mode", "MM", "--transitions", "-5"], "--transitions must be positive"),
+        (["--setup", "grid", "--mode", "MM", "--shard-size", "0"], "--shard-size must be positive"),
+    ],
+)
+def test_bad_generate_flags(tmp_path, args, needle):
+    lake = tmp_path / "lake"
+    line = one_error_line(smgen("generate", *args, "--lake", lake))
+    assert needle in line
+    assert not lake.exists() or not any(lake.iterdir())
+
+
+def test_wrong_flag_is_a_usage_error(tmp_path):
+    result = smgen("generate", "--setup", "grid", "--mode", "MM", "--colour", "red")
+    assert result.exit_code == 2 and "No such option" in result.output
+
+
+def test_lake_path_that_is_a_file(tmp_path):
+    f = tmp_path / "lake.txt"
+    f.write_text("not a lake")
+    line = one_error_line(smgen("generate", "--setup", "grid", "--mode", "MM", "--lake", f))
+    assert str(f) in line and "is a file" in line
+    assert f.read_text() == "not a lake"
+
+
+def test_unwritable_lake_folder():
+    line = one_error_line(smgen("generate", "--setup", "grid", "--mode", "MM", "--lake", "/sys/smspace-lake"))
+    assert "/sys/smspace-lake" in line
+
+
+def test_unknown_dataset_id(grid_lake):
+    line = one_error_line(smgen("info", "--lake", grid_lake, "grid-seed99-MM"))
+    assert "grid-seed99-MM" in line
+    assert one_error_line(smgen("validate", "--lake", grid_lake, "nope"))
+
+
+@pytest.fixture
+def lake_copy(grid_lake, tmp_path) -> Path:
+    dst = tmp_path / "lake"
+    shutil.copytree(grid_lake, dst)
+    return dst
+
+
+def test_validate_names_a_truncated_shard(lake_copy):
+    shard = lake_copy / "grid-seed3-MM" / "shard-00001.mcap"
+    data = shard.read_bytes()
+    shard.write_bytes(data[: len(data) // 2])
+    result = smgen("validate", "--lake", lake_copy, "grid-seed3-MM", "grid-seed3-MME")
+    assert result.exit_code == 1
+    bad = [line for line in result.output.splitlines() if "shard-00001.mcap" in line]
+    assert bad and all(line.startswith("grid-seed3-MM/shard-00001.mcap") for line in bad)
+    assert "grid-seed3-MME: ok" in result.output
+
+
+def test_validate_names_a_bit_flipped_shard(lake_copy):
+    shard = lake_copy / "grid-seed3-MEM" / "shard-00002.mcap"
+    data = bytearray(shard.read_bytes())
+    data[len(data) // 3] ^= 0x10
+    shard.write_bytes(bytes(data))
+    result = smgen("validate", "--lake", lake_copy, "grid-seed3-MEM")
+    assert result.exit_code == 1
+    assert "grid-seed3-MEM/shard-00002.mcap: sha256 differs" in result.output
+    assert "CRC" in result.output or "corrupt" in result.output  # the MCAP chunk CRC catches it too
+    with pytest.raises(SmspaceError, match="shard-00002"):
+        Dataset.open("grid-seed3-MEM", lake_copy).read_all()
+
+
+def test_validate_catches_a_broken_mode_invariant(lake_copy):
+    """An MME dataset whose shard really holds MEM transitions is flagged, not trusted."""
+    mme, mem = lake_copy / "grid-seed3-MME", lake_copy / "grid-seed3-MEM"
+    shutil.copy(mem / "shard-00000.mcap", mme / "shard-00000.mcap")
+    result = smgen("validate", "--lake", lake_copy, "grid-seed3-MME")
+    assert result.exit_code == 1
+    assert "grid-seed3-MME/shard-00000.mcap: MME shift_t != shift_t1" in result.output
+
+
+def write_foreign_shard(path: Path, schema_name: str) -> None:
+    with open(path, "wb") as fh:
+        w = Writer(fh, compression=CompressionType.ZSTD)
+        w.start()
+        sid = w.register_schema(schema_name, "protobuf",
+                                build_file_descriptor_set(schemas.TransitionBatch).SerializeToString())
+        cid = w.register_channel("/transitions", "protobuf", sid)
+        w.add_message(cid, log_time=0, publish_time=0, data=b"")
+        w.finish()
+
+
+def test_shard_of_another_schema_version(lake_copy):
+    shard = lake_copy / "grid-seed3-MM" / "shard-00000.mcap"
+    write_foreign_shard(shard, "smspace.v2.TransitionBatch")
+    result = smgen("validate", "--lake", lake_copy, "grid-seed3-MM")
+    assert result.exit_code == 1
+    assert "grid-seed3-MM/shard-00000.mcap" in result.output and "smspace.v2.TransitionBatch" in result.output
+    with pytest.raises(SmspaceError, match=r"shard-00000.mcap has schema smspace.v2"):
+        Dataset.open("grid-seed3-MM", lake_copy).read_all()
+
+
+def test_manifest_of_another_schema_version(lake_copy):
+    path = lake_copy / "grid-seed3-MM" / "manifest.json"
+    raw = json.loads(path.read_text())
+    raw["schema_version"] = 2
+    path.write_text(json.dumps(raw))
+    line = one_error_line(smgen("info", "--lake", lake_copy, "grid-seed3-MM"))
+    assert "schema version 2" in line
+
+
+def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):
+    """ENOSPC mid-write: a clear error naming the file, and no half-written shard."""
+    import datagen.lake.shards as shards
+
+    real = shards.encode_batch
+    calls = {"n": 0}
+
+    def failing(*args):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise OSError(28, "No space left on device")
+        return real(*args)
+
+    monkeypatch.setattr(shards, "encode_batch", failing)
+    line = one_error_line(smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 5000,
+                                "--lake", tmp_path))
+    assert "No space left on device" in line and "shard-00000.mcap" in line
+    folder = tmp_path / "grid-seed0-MM"
+    assert not list(folder.glob("shard-*")) and not (folder / "manifest.json").exists()

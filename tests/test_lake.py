@@ -1,0 +1,155 @@
+"""Write/read round trip, determinism, resume, overwrite refusal, catalog and info."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from datagen.generate import shard_rng, world_for
+from datagen.lake.dataset import Dataset
+from datagen.lake.manifest import GenConfig
+from datagen.lake.shards import ShardReader
+from datagen.setups import draw_transitions
+
+from .conftest import BIN, smgen
+
+
+def files_of(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.mcap"))}
+
+
+def test_round_trip_equals_the_generator(grid_lake):
+    ds = Dataset.open("grid-seed3-MME", grid_lake)
+    got = ds.read_all()
+    cfg = GenConfig(**ds.manifest.config)
+    world = world_for("grid", 3)
+    lo, hi = cfg.shard_range(1)
+    rng = shard_rng(cfg, 1)
+    first = draw_transitions(world, "MME", rng, cfg.batch_size)
+    for name in ("m_t", "m_t1", "s_t", "s_t1", "p_t", "p_t1", "shift_t", "shift_t1"):
+        np.testing.assert_array_equal(getattr(got, name)[lo : lo + cfg.batch_size], getattr(first, name))
+    assert len(got) == 6000 and got.s_t.dtype == np.float32
+
+
+def test_manifest_statistics_and_regular_sampling(grid_lake):
+    ds = Dataset.open(grid_lake / "grid-seed3-MM")
+    tr = ds.read_all()
+    norm = ds.manifest.normalisation
+    np.testing.assert_array_equal(norm["m_min"], tr.m_t.min(0))
+    np.testing.assert_array_equal(norm["s_max"], tr.s_t.max(0))
+    m, p = ds.regular_sampling()
+    assert m.shape == (125, 3) and p.shape == (125, 2)
+    assert ds.manifest.regular_sampling["count"] == 125
+    assert [s["transitions"] for s in ds.manifest.shards] == [2500, 2500, 1000]
+
+
+def test_modes_share_the_world_and_validate(grid_lake):
+    result = smgen("validate", "--lake", grid_lake, "grid-seed3-MEM", "grid-seed3-MM", "grid-seed3-MME")
+    assert result.exit_code == 0, result.output
+    assert result.output.count(": ok") == 3
+    tables = []
+    for mode in ("MEM", "MM", "MME"):
+        tr = Dataset.open(f"grid-seed3-{mode}", grid_lake).read_all()
+        world = world_for("grid", 3)
+        np.testing.assert_array_equal(tr.s_t, world.sense(tr.p_t, tr.shift_t))
+        tables.append(tr)
+    assert np.all(tables[1].shift_t == 5)
+
+
+def test_catalog_ls_and_info(grid_lake):
+    table = pq.read_table(grid_lake / "catalog.parquet").to_pylist()
+    assert sorted(r["id"] for r in table) == ["grid-seed3-MEM", "grid-seed3-MM", "grid-seed3-MME"]
+    assert all(r["transitions"] == 6000 and r["sensor_shape"] == [4] for r in table)
+    out = smgen("ls", "--lake", grid_lake)
+    assert out.exit_code == 0 and "grid-seed3-MME" in out.output
+    info = json.loads(smgen("info", "--lake", grid_lake, "grid-seed3-MM", "--json").output)
+    for key, value in {"setup": "grid", "mode": "MM", "world_seed": 3, "transitions": 6000, "shards": 3,
+                       "schema_version": 1, "n_motor": 3, "sensor_shape": [4], "regular_sampling_size": 125}.items():
+        assert info[key] == value, key
+
+
+def test_same_bytes_whatever_the_worker_count(tmp_path):
+    args = ["--setup", "grid", "--mode", "MEM", "--transitions", 9000, "--shard-size", 2000, "--seed", 11]
+    one = smgen("generate", *args, "--lake", tmp_path / "a", "--workers", 1)
+    two = subprocess.run([str(BIN / "smgen"), "generate", *map(str, args), "--lake", str(tmp_path / "b"),
+                          "--workers", "2"], capture_output=True, text=True, timeout=120)
+    assert one.exit_code == 0 and two.returncode == 0, two.stderr
+    a, b = tmp_path / "a" / "grid-seed11-MEM", tmp_path / "b" / "grid-seed11-MEM"
+    assert files_of(a) == files_of(b) and len(files_of(a)) == 6
+    assert (a / "manifest.json").read_bytes() == (b / "manifest.json").read_bytes()
+
+
+def test_existing_dataset_with_another_config_is_refused(tmp_path):
+    base = ["generate", "--setup", "grid", "--mode", "MM", "--seed", 2, "--lake", tmp_path]
+    assert smgen(*base, "--transitions", 3000).exit_code == 0
+    before = files_of(tmp_path / "grid-seed2-MM")
+    again = smgen(*base, "--transitions", 3000)
+    assert again.exit_code == 0 and "exists" in again.output
+    refused = smgen(*base, "--transitions", 4000)
+    assert refused.exit_code == 2 and "--overwrite" in refused.output
+    assert files_of(tmp_path / "grid-seed2-MM") == before
+    replaced = smgen(*base, "--transitions", 4000, "--overwrite")
+    assert replaced.exit_code == 0
+    assert Dataset.open("grid-seed2-MM", tmp_path).manifest.transitions == 4000
+
+
+def test_killed_generation_resumes_to_identical_bytes(tmp_path):
+    args = ["generate", "--setup", "grid", "--mode", "MME", "--transitions", 400_000, "--shard-size", 4096,
+            "--seed", 4]
+    killed_lake, clean_lake = tmp_path / "killed", tmp_path / "clean"
+    folder = killed_lake / "grid-seed4-MME"
+    proc = subprocess.Popen([str(BIN / "smgen"), *map(str, args), "--lake", str(killed_lake)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 60
+    while len(list(folder.glob("shard-*.mcap"))) < 5 and time.time() < deadline:
+        time.sleep(0.005)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    survivors = sorted(folder.glob("shard-*.mcap"))
+    assert 5 <= len(survivors) < 98, "the kill must land mid-generation"
+    assert not (folder / "manifest.json").exists()
+    for path in survivors:  # whatever carries a final name is complete
+        with ShardReader(path) as reader:
+            assert sum(len(b.transitions) for b in reader.blocks()) == 4096
+    listed = smgen("ls", "--lake", killed_lake).output
+    assert "grid-seed4-MME" not in listed
+    info = smgen("info", "--lake", killed_lake, "grid-seed4-MME")
+    assert info.exit_code == 2 and "incomplete" in info.output
+    stamps = {p.name: p.stat().st_mtime_ns for p in survivors}
+
+    assert smgen(*args, "--lake", killed_lake).exit_code == 0
+    assert {p.name: p.stat().st_mtime_ns for p in survivors} == stamps, "complete shards must not be rewritten"
+    assert smgen(*args, "--lake", clean_lake).exit_code == 0
+    assert files_of(folder) == files_of(clean_lake / "grid-seed4-MME")
+    assert (folder / "manifest.json").read_bytes() == (clean_lake / "grid-seed4-MME" / "manifest.json").read_bytes()
+    assert not list(folder.glob("*.partial")) and not (folder / "generation.json").exists()
+
+
+def test_progress_bar_is_quiet_without_a_terminal(tmp_path):
+    proc = subprocess.run([str(BIN / "smgen"), "generate", "--setup", "grid", "--mode", "MM", "--transitions", "2000",
+                           "--lake", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and proc.stderr == ""
+    assert proc.stdout.strip().split("\t") == ["grid-seed0-MM", str(tmp_path / "grid-seed0-MM"), "written"]
+
+
+def test_worlds_derive_their_seeds(tmp_path):
+    out = smgen("generate", "--setup", "grid6", "--mode", "MME", "--worlds", 2, "--seed", 7, "--transitions", 1500,
+                "--lake", tmp_path)
+    assert out.exit_code == 0, out.output
+    assert "grid6-seed7-MME" in out.output and "grid6-seed8-MME" in out.output
+    ds = Dataset.open("grid6-seed8-MME", tmp_path)
+    assert ds.manifest.n_motor == 6 and ds.manifest.regular_sampling["count"] == 15625
+    assert smgen("validate", "--lake", tmp_path, "grid6-seed7-MME", "grid6-seed8-MME").exit_code == 0
+
+
+def test_python_dash_m_entry_point():
+    proc = subprocess.run([sys.executable, "-m", "datagen.cli", "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0 and "generate" in proc.stdout
