@@ -32,7 +32,20 @@ def run_cmd(*args: str, timeout: float = 120, **kwargs) -> subprocess.CompletedP
 def grid_lake(tmp_path_factory) -> Path:
     """Three modes of one grid world, 6000 transitions in 3 shards: read-only for tests."""
     lake = tmp_path_factory.mktemp("grid_lake")
-    result = smgen("generate", "--setup", "grid", "--mode", "all", "--transitions", 6000, "--shard-size", 2500,
-                   "--seed", 3, "--lake", lake)
+    result = smgen(
+        "generate",
+        "--setup",
+        "grid",
+        "--mode",
+        "all",
+        "--transitions",
+        6000,
+        "--shard-size",
+        2500,
+        "--seed",
+        3,
+        "--lake",
+        lake,
+    )
     assert result.exit_code == 0, result.output
     return lake

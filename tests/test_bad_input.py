@@ -109,8 +109,9 @@ def write_foreign_shard(path: Path, schema_name: str) -> None:
     with open(path, "wb") as fh:
         w = Writer(fh, compression=CompressionType.ZSTD)
         w.start()
-        sid = w.register_schema(schema_name, "protobuf",
-                                build_file_descriptor_set(schemas.TransitionBatch).SerializeToString())
+        sid = w.register_schema(
+            schema_name, "protobuf", build_file_descriptor_set(schemas.TransitionBatch).SerializeToString()
+        )
         cid = w.register_channel("/transitions", "protobuf", sid)
         w.add_message(cid, log_time=0, publish_time=0, data=b"")
         w.finish()
@@ -149,8 +150,9 @@ def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):
         return real(*args)
 
     monkeypatch.setattr(shards, "encode_batch", failing)
-    line = one_error_line(smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 5000,
-                                "--lake", tmp_path))
+    line = one_error_line(
+        smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 5000, "--lake", tmp_path)
+    )
     assert "No space left on device" in line and "shard-00000.mcap" in line
     folder = tmp_path / "grid-seed0-MM"
     assert not list(folder.glob("shard-*")) and not (folder / "manifest.json").exists()

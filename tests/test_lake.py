@@ -31,7 +31,7 @@ def test_round_trip_equals_the_generator(grid_lake):
     got = ds.read_all()
     cfg = GenConfig(**ds.manifest.config)
     world = world_for("grid", 3)
-    lo, hi = cfg.shard_range(1)
+    lo, _ = cfg.shard_range(1)
     rng = shard_rng(cfg, 1)
     first = draw_transitions(world, "MME", rng, cfg.batch_size)
     for name in ("m_t", "m_t1", "s_t", "s_t1", "p_t", "p_t1", "shift_t", "shift_t1"):
@@ -71,16 +71,29 @@ def test_catalog_ls_and_info(grid_lake):
     out = smgen("ls", "--lake", grid_lake)
     assert out.exit_code == 0 and "grid-seed3-MME" in out.output
     info = json.loads(smgen("info", "--lake", grid_lake, "grid-seed3-MM", "--json").output)
-    for key, value in {"setup": "grid", "mode": "MM", "world_seed": 3, "transitions": 6000, "shards": 3,
-                       "schema_version": 1, "n_motor": 3, "sensor_shape": [4], "regular_sampling_size": 125}.items():
+    for key, value in {
+        "setup": "grid",
+        "mode": "MM",
+        "world_seed": 3,
+        "transitions": 6000,
+        "shards": 3,
+        "schema_version": 1,
+        "n_motor": 3,
+        "sensor_shape": [4],
+        "regular_sampling_size": 125,
+    }.items():
         assert info[key] == value, key
 
 
 def test_same_bytes_whatever_the_worker_count(tmp_path):
     args = ["--setup", "grid", "--mode", "MEM", "--transitions", 9000, "--shard-size", 2000, "--seed", 11]
     one = smgen("generate", *args, "--lake", tmp_path / "a", "--workers", 1)
-    two = subprocess.run([str(BIN / "smgen"), "generate", *map(str, args), "--lake", str(tmp_path / "b"),
-                          "--workers", "2"], capture_output=True, text=True, timeout=120)
+    two = subprocess.run(
+        [str(BIN / "smgen"), "generate", *map(str, args), "--lake", str(tmp_path / "b"), "--workers", "2"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert one.exit_code == 0 and two.returncode == 0, two.stderr
     a, b = tmp_path / "a" / "grid-seed11-MEM", tmp_path / "b" / "grid-seed11-MEM"
     assert files_of(a) == files_of(b) and len(files_of(a)) == 6
@@ -102,12 +115,14 @@ def test_existing_dataset_with_another_config_is_refused(tmp_path):
 
 
 def test_killed_generation_resumes_to_identical_bytes(tmp_path):
-    args = ["generate", "--setup", "grid", "--mode", "MME", "--transitions", 400_000, "--shard-size", 4096,
-            "--seed", 4]
+    args = ["generate", "--setup", "grid", "--mode", "MME", "--transitions", 400_000, "--shard-size", 4096, "--seed", 4]
     killed_lake, clean_lake = tmp_path / "killed", tmp_path / "clean"
     folder = killed_lake / "grid-seed4-MME"
-    proc = subprocess.Popen([str(BIN / "smgen"), *map(str, args), "--lake", str(killed_lake)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [str(BIN / "smgen"), *map(str, args), "--lake", str(killed_lake)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 60
     while len(list(folder.glob("shard-*.mcap"))) < 5 and time.time() < deadline:
         time.sleep(0.005)
@@ -134,15 +149,43 @@ def test_killed_generation_resumes_to_identical_bytes(tmp_path):
 
 
 def test_progress_bar_is_quiet_without_a_terminal(tmp_path):
-    proc = subprocess.run([str(BIN / "smgen"), "generate", "--setup", "grid", "--mode", "MM", "--transitions", "2000",
-                           "--lake", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [
+            str(BIN / "smgen"),
+            "generate",
+            "--setup",
+            "grid",
+            "--mode",
+            "MM",
+            "--transitions",
+            "2000",
+            "--lake",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 0 and proc.stderr == ""
     assert proc.stdout.strip().split("\t") == ["grid-seed0-MM", str(tmp_path / "grid-seed0-MM"), "written"]
 
 
 def test_worlds_derive_their_seeds(tmp_path):
-    out = smgen("generate", "--setup", "grid6", "--mode", "MME", "--worlds", 2, "--seed", 7, "--transitions", 1500,
-                "--lake", tmp_path)
+    out = smgen(
+        "generate",
+        "--setup",
+        "grid6",
+        "--mode",
+        "MME",
+        "--worlds",
+        2,
+        "--seed",
+        7,
+        "--transitions",
+        1500,
+        "--lake",
+        tmp_path,
+    )
     assert out.exit_code == 0, out.output
     assert "grid6-seed7-MME" in out.output and "grid6-seed8-MME" in out.output
     ds = Dataset.open("grid6-seed8-MME", tmp_path)

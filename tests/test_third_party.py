@@ -15,8 +15,13 @@ from .conftest import BIN
 
 
 def rerun_check(path) -> subprocess.CompletedProcess:
-    return subprocess.run([str(BIN / "rerun"), "mcap", "check", str(path)], capture_output=True, text=True,
-                          timeout=120, env={"CI": "true", "PATH": "/usr/bin:/bin"})
+    return subprocess.run(
+        [str(BIN / "rerun"), "mcap", "check", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={"CI": "true", "PATH": "/usr/bin:/bin"},
+    )
 
 
 def test_rerun_mcap_check_accepts_our_shards_and_rejects_a_corrupt_one(grid_lake, tmp_path):

@@ -1,0 +1,80 @@
+"""D_topo and D_metric against a brute force over all pairs, and on known cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import metrics.spatial as spatial
+from datagen.setups.grid import GridWorld
+from metrics import affine_projection, spatial_scores
+
+
+def brute_force(h: np.ndarray, p: np.ndarray, alpha: float = 50.0) -> tuple[float, float]:
+    """SPEC 4 written literally: every pair i < j, distances in float64."""
+    n = len(h)
+    i, j = np.triu_indices(n, k=1)
+    dh = np.linalg.norm(h[i] - h[j], axis=1)
+    dp = np.linalg.norm(p[i] - p[j], axis=1)
+    x = np.hstack([h, np.ones((n, 1))])
+    coef = np.linalg.lstsq(x, p, rcond=None)[0]
+    hh = x @ coef
+    dhh = np.linalg.norm(hh[i] - hh[j], axis=1)
+    topo = np.mean(dh / dh.max() * np.exp(-alpha * dp / dp.max()))
+    metric = np.mean(np.abs(dhh - dp)) / dp.max()
+    return topo, metric
+
+
+@pytest.mark.parametrize("n_h", [2, 3, 25])
+def test_matches_brute_force_on_small_sets(n_h, monkeypatch):
+    monkeypatch.setattr(spatial, "BLOCK_ELEMENTS", 5000)  # many blocks, ragged last one
+    rng = np.random.default_rng(n_h)
+    p = GridWorld(0).positions
+    h = rng.normal(size=(len(p), n_h))
+    got = spatial_scores(h, p)
+    topo, metric = brute_force(h, p)
+    assert got.d_topo == pytest.approx(topo, rel=1e-5)
+    assert got.d_metric == pytest.approx(metric, rel=1e-5)
+
+
+def test_continuous_positions_and_trained_like_encodings():
+    rng = np.random.default_rng(1)
+    p = rng.uniform(-1.5, 1.5, (300, 2))
+    h = np.c_[np.tanh(p), p[:, :1] * p[:, 1:]] + rng.normal(0, 0.05, (300, 3))
+    got = spatial_scores(h, p)
+    topo, metric = brute_force(h, p)
+    assert got.d_topo == pytest.approx(topo, rel=1e-5) and got.d_metric == pytest.approx(metric, rel=1e-5)
+
+
+def test_affine_image_of_p_has_zero_metric_error():
+    p = GridWorld(2, 6).positions
+    a = np.array([[0.3, -1.2, 2.0], [1.1, 0.4, -0.7]])
+    h = p @ a + np.array([5.0, -3.0, 0.25])
+    scores = spatial_scores(h, p)
+    assert scores.d_metric < 1e-6
+    np.testing.assert_allclose(affine_projection(h, p), p, atol=1e-9)
+
+
+def test_random_h_is_far_from_zero():
+    p = GridWorld(0).positions
+    h = np.random.default_rng(0).normal(size=(len(p), 3))
+    scores = spatial_scores(h, p)
+    assert scores.d_metric > 0.2 and scores.d_topo > 5e-3
+    # and h = p is near-perfect topology (reference value ~3.4e-6, research/original-code.md §5)
+    assert spatial_scores(np.c_[p, np.zeros(len(p))], p).d_topo < 1e-5
+
+
+def test_d_metric_is_invariant_to_an_affine_transform_of_h():
+    rng = np.random.default_rng(3)
+    p = GridWorld(0).positions
+    h = np.tanh(rng.normal(size=(len(p), 3)) + np.c_[p, p[:, :1]])
+    a = rng.normal(size=(3, 3)) + 3 * np.eye(3)
+    transformed = h @ a + rng.normal(size=3)
+    assert spatial_scores(transformed, p).d_metric == pytest.approx(spatial_scores(h, p).d_metric, rel=1e-5)
+
+
+def test_bad_shapes_are_refused():
+    with pytest.raises(ValueError):
+        spatial_scores(np.zeros((1, 3)), np.zeros((1, 2)))
+    with pytest.raises(ValueError):
+        spatial_scores(np.zeros((4, 3)), np.ones((4, 2)))

@@ -1,0 +1,1 @@
+"""Training the sensorimotor predictive network by streaming lake datasets (smtrain)."""

@@ -1,0 +1,194 @@
+"""Stream a lake dataset into training batches: sharded over workers and ranks, shuffled from a
+seed, endless if asked, and resumable to the exact same stream.
+
+The unit of work is one batch message (≈1024 transitions; each is its own MCAP chunk). In epoch e
+the units are permuted with SeedSequence(seed, (e,)); the g-th of G consumers (G = ranks × DataLoader
+workers) takes units g, g+G, … — so within an epoch no transition is read twice or missed. A
+consumer shuffles rows inside windows of `window` units and cuts its row stream into batches.
+Everything is a function of (seed, g, G, rows consumed), so resuming needs only a batch count.
+Only (m_t, s_t, m_t1, s_t1) leave the loader: the privileged ground truth never reaches a model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
+from datagen.lake.dataset import Dataset
+from datagen.lake.manifest import Manifest
+from datagen.lake.shards import ShardReader
+
+
+@dataclass(frozen=True)
+class Unit:
+    shard: int
+    first_index: int
+    count: int
+
+
+class Normaliser:
+    """SPEC 2.5: per component, 2(x − min)/(max − min) − 1 with the dataset's min/max; max = min maps to 0."""
+
+    def __init__(self, lo: list[float], hi: list[float]):
+        lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        span = hi_a - lo_a
+        safe = np.where(span > 0, span, 1.0)
+        self.scale = np.where(span > 0, 2.0 / safe, 0.0).astype(np.float32)
+        self.offset = np.where(span > 0, -2.0 * lo_a / safe - 1.0, 0.0).astype(np.float32)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        flat = x.reshape(len(x), -1).astype(np.float32)
+        return flat * self.scale + self.offset
+
+
+def normalisers(manifest: Manifest) -> tuple[Normaliser, Normaliser]:
+    n = manifest.normalisation
+    return Normaliser(n["m_min"], n["m_max"]), Normaliser(n["s_min"], n["s_max"])
+
+
+def dataset_units(manifest: Manifest) -> list[Unit]:
+    batch = manifest.config["batch_size"]
+    units = []
+    for i, shard in enumerate(manifest.shards):
+        lo, hi = shard["first_index"], shard["first_index"] + shard["transitions"]
+        units += [Unit(i, start, min(batch, hi - start)) for start in range(lo, hi, batch)]
+    return units
+
+
+def _consumer(rank: int | None, world: int | None) -> tuple[int, int]:
+    """(index, count) of this consumer among all ranks × DataLoader workers."""
+    if rank is None or world is None:
+        rank, world = 0, 1
+        if torch.distributed.is_available() and torch.distributed.is_initialized():
+            rank, world = torch.distributed.get_rank(), torch.distributed.get_world_size()
+    info = get_worker_info()
+    wid, nw = (info.id, info.num_workers) if info else (0, 1)
+    return rank * nw + wid, world * nw
+
+
+class TransitionStream(IterableDataset):
+    """Yields (m_t, s_t, m_t1, s_t1) float32 batches, normalised with the manifest's statistics."""
+
+    def __init__(
+        self,
+        dataset: Dataset | str | Path,
+        batch_size: int = 100,
+        seed: int = 0,
+        epochs: int | None = None,
+        window: int = 8,
+        rank: int | None = None,
+        world_size: int | None = None,
+    ):
+        """rank/world_size default to torch.distributed's when it is initialised, else 0 of 1."""
+        super().__init__()
+        self.rank, self.world_size = rank, world_size
+        self.dataset = dataset if isinstance(dataset, Dataset) else Dataset(Path(dataset))
+        self.batch_size = batch_size
+        self.seed = seed
+        self.epochs = epochs  # None: sample endlessly (step-based training)
+        self.window = window
+        self.units = dataset_units(self.dataset.manifest)
+        self.m_norm, self.s_norm = normalisers(self.dataset.manifest)
+        self.batches_consumed = 0  # batches already delivered before this iterator starts
+
+    # -- resumable state ------------------------------------------------------------------
+    def state_dict(self) -> dict[str, int]:
+        return {"seed": self.seed, "batch_size": self.batch_size, "batches_consumed": self.batches_consumed}
+
+    def load_state_dict(self, state: dict[str, int]) -> None:
+        if state["seed"] != self.seed or state["batch_size"] != self.batch_size:
+            raise ValueError("stream state belongs to another seed or batch size")
+        self.batches_consumed = int(state["batches_consumed"])
+
+    # -- the stream -------------------------------------------------------------------------
+    def _epoch_units(self, epoch: int, g: int, n_consumers: int) -> list[Unit]:
+        order = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(epoch,))).permutation(
+            len(self.units)
+        )
+        return [self.units[i] for i in order[g::n_consumers]]
+
+    def _windows(self, g: int, n_consumers: int) -> Iterator[tuple[int, int, list[Unit]]]:
+        epoch = 0
+        while self.epochs is None or epoch < self.epochs:
+            units = self._epoch_units(epoch, g, n_consumers)
+            if not units and self.epochs is None and epoch == 0:
+                raise ValueError(f"consumer {g} of {n_consumers} has no data: more consumers than batches")
+            for w in range(0, len(units), self.window):
+                yield epoch, w, units[w : w + self.window]
+            epoch += 1
+
+    def _rows(self, readers: dict[int, ShardReader], epoch: int, w: int, g: int, units: list[Unit]):
+        blocks = [readers[u.shard].block_at(u.first_index).transitions for u in units]
+        cat = {k: np.concatenate([getattr(b, k) for b in blocks]) for k in ("m_t", "s_t", "m_t1", "s_t1")}
+        order = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(epoch, w, g, 1))).permutation(
+            len(cat["m_t"])
+        )
+        return (
+            self.m_norm(cat["m_t"][order]),
+            self.s_norm(cat["s_t"][order]),
+            self.m_norm(cat["m_t1"][order]),
+            self.s_norm(cat["s_t1"][order]),
+        )
+
+    def _my_skip(self, g_local: int, n_local: int) -> int:
+        """Batches this DataLoader worker already delivered: the loader takes them round-robin."""
+        n = self.batches_consumed
+        return max(0, -(-(n - g_local) // n_local)) if n > g_local else 0
+
+    def __iter__(self) -> Iterator[tuple[torch.Tensor, ...]]:
+        g, n_consumers = _consumer(self.rank, self.world_size)
+        info = get_worker_info()
+        g_local, n_local = (info.id, info.num_workers) if info else (0, 1)
+        skip_rows = self._my_skip(g_local, n_local) * self.batch_size
+        paths = self.dataset.shard_paths()
+        readers: dict[int, ShardReader] = {}
+        pending: list[tuple[np.ndarray, ...]] = []
+        pending_rows = 0
+        try:
+            for epoch, w, units in self._windows(g, n_consumers):
+                rows = sum(u.count for u in units)
+                if skip_rows >= rows:  # resuming: whole windows are skipped without reading them
+                    skip_rows -= rows
+                    continue
+                for u in units:
+                    if u.shard not in readers:
+                        readers[u.shard] = ShardReader(paths[u.shard])
+                cols = self._rows(readers, epoch, w, g, units)
+                if skip_rows:
+                    cols = tuple(c[skip_rows:] for c in cols)
+                    skip_rows = 0
+                pending.append(cols)
+                pending_rows += len(cols[0])
+                while pending_rows >= self.batch_size:
+                    batch, pending, pending_rows = _take(pending, self.batch_size)
+                    if info is None:
+                        self.batches_consumed += 1
+                    yield batch
+            if pending_rows:  # finite streams end with a partial batch
+                batch, pending, pending_rows = _take(pending, pending_rows)
+                if info is None:
+                    self.batches_consumed += 1
+                yield batch
+        finally:
+            for reader in readers.values():
+                reader.close()
+
+
+def _take(pending: list[tuple[np.ndarray, ...]], n: int):
+    """Cut the first n rows off the queue of column blocks."""
+    if len(pending[0][0]) >= n:
+        head = pending[0]
+        batch = tuple(torch.from_numpy(np.ascontiguousarray(c[:n])) for c in head)
+        rest = tuple(c[n:] for c in head)
+        pending = ([rest] if len(rest[0]) else []) + pending[1:]
+    else:
+        cols = tuple(np.concatenate(parts) for parts in zip(*pending, strict=True))
+        batch = tuple(torch.from_numpy(np.ascontiguousarray(c[:n])) for c in cols)
+        rest = tuple(c[n:] for c in cols)
+        pending = [rest] if len(rest[0]) else []
+    return batch, pending, sum(len(p[0]) for p in pending)

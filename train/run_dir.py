@@ -1,0 +1,163 @@
+"""A run folder: config, metrics table, learned h per evaluation, checkpoint, status.
+
+Every file is replaced atomically, so a run killed at any moment keeps its last good checkpoint
+and a metrics table that resume trims back to that checkpoint.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import torch
+
+from datagen.errors import SmspaceError
+from datagen.lake.atomic import remove_partials, write_atomic
+from train.config import TrainConfig
+
+CONFIG = "config.json"
+METRICS = "metrics.parquet"
+EMBEDDINGS = "embeddings"
+CHECKPOINT = "checkpoint.pt"
+STATUS = "status.json"
+
+METRICS_SCHEMA = pa.schema(
+    [
+        ("step", pa.int64()),
+        ("lr", pa.float64()),
+        ("train_loss", pa.float64()),  # mean training loss since the previous evaluation
+        ("eval_loss", pa.float64()),  # loss on the fixed evaluation transitions
+        ("d_topo", pa.float64()),
+        ("d_metric", pa.float64()),
+        ("elapsed_s", pa.float64()),  # wall-clock training time so far (the only non-reproducible column)
+    ]
+)
+
+
+def _parquet_bytes(table: pa.Table) -> bytes:
+    buf = io.BytesIO()
+    pq.write_table(table, buf, compression="zstd")
+    return buf.getvalue()
+
+
+def embedding_file(step: int) -> str:
+    return f"step-{step:07d}.parquet"
+
+
+class RunDir:
+    def __init__(self, path: Path):
+        self.path = Path(path)
+
+    # -- lifecycle ------------------------------------------------------------------------
+    @classmethod
+    def create(cls, path: Path, cfg: TrainConfig, overwrite: bool) -> RunDir:
+        run = cls(path)
+        if run.path.exists() and not run.path.is_dir():
+            raise SmspaceError(f"output {run.path} is a file, not a folder")
+        if (run.path / CONFIG).exists():
+            if not overwrite:
+                raise SmspaceError(f"{run.path} already holds a run: pass --resume to continue it or --overwrite")
+            run._clear()
+        elif run.path.exists() and any(run.path.iterdir()) and not overwrite:
+            raise SmspaceError(f"{run.path} is not empty and holds no run; choose another --out")
+        try:
+            run.path.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise SmspaceError(f"cannot create run folder {run.path}: {e.strerror or e}") from e
+        write_atomic(run.path / CONFIG, (json.dumps(cfg.to_dict(), indent=1) + "\n").encode())
+        return run
+
+    @classmethod
+    def open(cls, path: Path) -> RunDir:
+        run = cls(path)
+        if not (run.path / CONFIG).exists():
+            raise SmspaceError(f"{run.path} is not a run folder (no {CONFIG})")
+        return run
+
+    def _clear(self) -> None:
+        for name in (CONFIG, METRICS, CHECKPOINT, STATUS):
+            (self.path / name).unlink(missing_ok=True)
+        shutil.rmtree(self.path / EMBEDDINGS, ignore_errors=True)
+        remove_partials(self.path)
+
+    @property
+    def config(self) -> TrainConfig:
+        return TrainConfig.from_dict(json.loads((self.path / CONFIG).read_text()))
+
+    # -- status ---------------------------------------------------------------------------
+    def set_status(self, state: str, step: int, message: str = "") -> None:
+        write_atomic(self.path / STATUS, json.dumps({"state": state, "step": step, "message": message}).encode())
+
+    def status(self) -> dict[str, Any]:
+        try:
+            return json.loads((self.path / STATUS).read_text())
+        except FileNotFoundError:
+            return {"state": "created", "step": 0, "message": ""}
+
+    # -- metrics and embeddings -------------------------------------------------------------
+    def metrics(self) -> list[dict[str, Any]]:
+        path = self.path / METRICS
+        return pq.read_table(path).to_pylist() if path.exists() else []
+
+    def write_metrics(self, rows: list[dict[str, Any]]) -> None:
+        write_atomic(self.path / METRICS, _parquet_bytes(pa.Table.from_pylist(rows, schema=METRICS_SCHEMA)))
+
+    def write_embeddings(self, step: int, h: np.ndarray, p: np.ndarray, extra: dict[str, np.ndarray]) -> None:
+        """h of the regular sampling with its p (so anyone can recompute the metrics), plus extras."""
+        folder = self.path / EMBEDDINGS
+        folder.mkdir(exist_ok=True)
+        columns = {
+            "index": pa.array(np.arange(len(h), dtype=np.int32)),
+            "h": _fixed_list(h),
+            "p": _fixed_list(p),
+        }
+        table = pa.table(columns, metadata={"step": str(step)})
+        write_atomic(folder / embedding_file(step), _parquet_bytes(table))
+        for name, value in extra.items():
+            write_atomic(folder / f"{name}-{step:07d}.npy", _npy_bytes(value))
+
+    def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        table = pq.read_table(self.path / EMBEDDINGS / embedding_file(step))
+        return _from_fixed_list(table["h"]), _from_fixed_list(table["p"])
+
+    def truncate_after(self, step: int) -> None:
+        for path in (self.path / EMBEDDINGS).glob("*-*.*"):
+            if int(path.stem.rsplit("-", 1)[1]) > step:
+                path.unlink()
+
+    # -- checkpoints --------------------------------------------------------------------------
+    def save_checkpoint(self, state: dict[str, Any]) -> None:
+        buf = io.BytesIO()
+        torch.save(state, buf)
+        write_atomic(self.path / CHECKPOINT, buf.getvalue())
+
+    def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
+        path = self.path / CHECKPOINT
+        if not path.exists():
+            raise SmspaceError(f"{self.path} has no checkpoint to resume from")
+        try:
+            return torch.load(path, map_location=device, weights_only=True)
+        except Exception as e:
+            raise SmspaceError(f"checkpoint {path} is unreadable: {e}") from e
+
+
+def _fixed_list(x: np.ndarray) -> pa.FixedSizeListArray:
+    x = np.ascontiguousarray(x, np.float32)
+    return pa.FixedSizeListArray.from_arrays(pa.array(x.reshape(-1)), x.shape[1])
+
+
+def _from_fixed_list(col: pa.ChunkedArray) -> np.ndarray:
+    arr = col.combine_chunks()
+    return arr.values.to_numpy().reshape(len(arr), arr.type.list_size)
+
+
+def _npy_bytes(x: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(x), allow_pickle=False)
+    return buf.getvalue()
