@@ -27,13 +27,13 @@ def fail(message: str, code: int = 2) -> None:
 
 
 def friendly_errors(fn: Callable) -> Callable:
-    """Our own errors become one line on stderr and exit code 2, never a traceback."""
+    """Our own errors become one line on stderr and their exit code (2: bad input), never a traceback."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         try:
             return fn(*args, **kwargs)
         except SmspaceError as e:
-            fail(str(e))
+            fail(str(e), e.exit_code)
 
     return wrapper

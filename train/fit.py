@@ -32,6 +32,8 @@ N_PREDICTIONS = 16  # predicted vs true s_t1 kept per evaluation, for viewers an
 class TrainingFailed(SmspaceError):
     """Training itself went wrong (NaN loss); the last good checkpoint is kept."""
 
+    exit_code = 1
+
 
 def resolve_device(name: str) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():

@@ -60,15 +60,12 @@ def dataset_units(manifest: Manifest) -> list[Unit]:
     return units
 
 
-def _consumer(rank: int | None, world: int | None) -> tuple[int, int]:
-    """(index, count) of this consumer among all ranks × DataLoader workers."""
-    if rank is None or world is None:
-        rank, world = 0, 1
-        if torch.distributed.is_available() and torch.distributed.is_initialized():
-            rank, world = torch.distributed.get_rank(), torch.distributed.get_world_size()
-    info = get_worker_info()
-    wid, nw = (info.id, info.num_workers) if info else (0, 1)
-    return rank * nw + wid, world * nw
+def _rank(rank: int | None, world: int | None) -> tuple[int, int]:
+    if rank is not None and world is not None:
+        return rank, world
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return 0, 1
 
 
 class TransitionStream(IterableDataset):
@@ -135,16 +132,25 @@ class TransitionStream(IterableDataset):
             self.s_norm(cat["s_t1"][order]),
         )
 
-    def _my_skip(self, g_local: int, n_local: int) -> int:
-        """Batches this DataLoader worker already delivered: the loader takes them round-robin."""
+    def _role(self) -> tuple[int, int, int]:
+        """(consumer index, consumer count, batches this consumer already delivered).
+
+        A DataLoader takes batches from its workers round-robin, starting with worker 0. After
+        N batches the next one is due from role N mod W, so on resume worker w plays role
+        (w + N) mod W: the merged stream continues exactly where it stopped.
+        """
+        rank, world = _rank(self.rank, self.world_size)
+        info = get_worker_info()
+        w, n_workers = (info.id, info.num_workers) if info else (0, 1)
         n = self.batches_consumed
-        return max(0, -(-(n - g_local) // n_local)) if n > g_local else 0
+        role = (w + n) % n_workers
+        delivered = -(-(n - role) // n_workers) if n > role else 0
+        return rank * n_workers + role, world * n_workers, delivered
 
     def __iter__(self) -> Iterator[tuple[torch.Tensor, ...]]:
-        g, n_consumers = _consumer(self.rank, self.world_size)
+        g, n_consumers, delivered = self._role()
         info = get_worker_info()
-        g_local, n_local = (info.id, info.num_workers) if info else (0, 1)
-        skip_rows = self._my_skip(g_local, n_local) * self.batch_size
+        skip_rows = delivered * self.batch_size
         paths = self.dataset.shard_paths()
         readers: dict[int, ShardReader] = {}
         pending: list[tuple[np.ndarray, ...]] = []
