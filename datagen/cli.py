@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import click
 
@@ -105,6 +106,46 @@ def validate(datasets, lake) -> None:
         else:
             click.echo(f"{folder.name}: ok")
     sys.exit(1 if bad else 0)
+
+
+@main.command()
+@click.argument("dataset", required=False)
+@click.option("--setup", "setup_name", default=None, help="Preview a world without a dataset (with --seed).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@LAKE_OPTION
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder for the PNGs.")
+@click.option("--frames", "n_frames", type=click.IntRange(min=1, max=256), default=64, show_default=True)
+@friendly_errors
+def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
+    """Write PNGs of a world: the room from above (arm) or the sensory table (grid), and sensor frames."""
+    import numpy as np
+
+    from datagen.generate import world_for
+    from datagen.lake.dataset import Dataset
+    from datagen.preview import write_previews
+    from datagen.setups import get_setup
+
+    if (dataset is None) == (setup_name is None):
+        raise SmspaceError("give either DATASET or --setup (with --seed)")
+    if dataset is not None:
+        ds = Dataset.open(dataset, lake)
+        setup_name, seed = ds.manifest.setup, ds.manifest.world_seed
+        frames = []
+        for block in ds.blocks():
+            frames.append(block.transitions.s_t)
+            if sum(len(f) for f in frames) >= n_frames:
+                break
+        s_t = np.concatenate(frames)[:n_frames]
+    else:
+        get_setup(setup_name).preflight()
+        s_t = None
+    world = world_for(get_setup(setup_name).name, seed)
+    if s_t is None and world.sensor_dtype == np.uint8:
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2,)))
+        _, p = world.sample_motors(rng, n_frames)
+        s_t = world.sense(p, np.zeros_like(p))
+    for path in write_previews(out, world, s_t):
+        click.echo(str(path))
 
 
 if __name__ == "__main__":

@@ -226,7 +226,7 @@ def generate(
         raise SmspaceError(f"--transitions must be positive, got {transitions}")
     if shard_size <= 0:
         raise SmspaceError(f"--shard-size must be positive, got {shard_size}")
-    get_setup(setup)
+    get_setup(setup).preflight()
     lake = check_lake(lake)
     if shutil.disk_usage(lake).free < 64 << 20:
         raise SmspaceError(f"less than 64 MiB free on the disk of {lake}")

@@ -4,6 +4,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# A Vulkan device for SAPIEN (the arm setups): Mesa 25 lavapipe in .vk/, unless a GPU driver exists.
+bash scripts/setup-vulkan.sh
+
 PY=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv

@@ -15,9 +15,15 @@ class Setup:
     n_motor: int
     default_transitions: int
     shift_bound: float  # |shift component| ≤ shift_bound (the MM shift may sit outside: it is fixed)
-    integer_positions: bool
     build: Callable[[int], World]
     description: str
+    preflight: Callable[[], None] = lambda: None  # fails early (before anything is written) if unusable
+
+
+def _render_device() -> None:
+    from datagen.setups.vulkan import require_render_device
+
+    require_render_device()
 
 
 def _grid(n_motor: int) -> Callable[[int], World]:
@@ -29,9 +35,22 @@ def _grid(n_motor: int) -> Callable[[int], World]:
     return build
 
 
+def _arm(n_motor: int) -> Callable[[int], World]:
+    def build(seed: int) -> World:
+        from datagen.setups.arm import ArmWorld  # imports SAPIEN lazily: grid users never pay for it
+
+        return ArmWorld(seed, n_motor)
+
+    return build
+
+
 SETUPS: dict[str, Setup] = {
-    "grid": Setup("grid", 3, 150_000, 10.0, True, _grid(3), "10×10 torus, 3 motors, 4 sensors (SPEC 2.1)"),
-    "grid6": Setup("grid6", 6, 150_000, 10.0, True, _grid(6), "10×10 torus, 6 mixed motors (SPEC 2.2)"),
+    "grid": Setup("grid", 3, 150_000, 10.0, _grid(3), "10×10 torus, 3 motors, 4 sensors (SPEC 2.1)"),
+    "grid6": Setup("grid6", 6, 150_000, 10.0, _grid(6), "10×10 torus, 6 mixed motors (SPEC 2.2)"),
+    "arm": Setup(
+        "arm", 3, 150_000, 1.75, _arm(3), "3-joint arm with a 16×16 camera in a room (SPEC 2.3)", _render_device
+    ),
+    "arm6": Setup("arm6", 6, 300_000, 1.75, _arm(6), "6-joint arm (2 prismatic) in a room (SPEC 2.4)", _render_device),
 }
 
 
