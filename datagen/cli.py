@@ -27,7 +27,7 @@ def main() -> None:
 @click.option("--seed", type=click.IntRange(min=0), default=0, help="Seed of the first world.")
 @LAKE_OPTION
 @click.option("--workers", type=click.IntRange(min=1), default=1, help="Worker processes (bytes do not depend on it).")
-@click.option("--shard-size", type=int, default=32768, show_default=True, help="Transitions per shard.")
+@click.option("--shard-size", type=int, default=None, help="Transitions per shard [grid 32768, arm 8192].")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
 @friendly_errors
 def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_size, overwrite) -> None:
@@ -38,6 +38,7 @@ def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_s
     setup = get_setup(setup_name)
     modes = list(MODES) if mode == "all" else [check_mode(mode)]
     n = setup.default_transitions if transitions is None else transitions
+    shard_size = setup.default_shard_size if shard_size is None else shard_size
     lake = lake or default_lake()
     results = run(lake, setup.name, modes, range(seed, seed + worlds), n, shard_size, workers, overwrite)
     for manifest, written in results:

@@ -7,6 +7,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from datagen.lake.dataset import Dataset
 from datagen.setups.arm import ArmWorld, planar_fk
@@ -174,3 +175,49 @@ def test_no_vulkan_device_is_a_clear_error(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "setup-vulkan.sh" in proc.stderr
     assert not (tmp_path / "lake").exists()
+
+
+def test_preview_writes_pictures_of_a_world_and_of_a_dataset(tmp_path):
+    from PIL import Image
+
+    from .conftest import SAMPLES
+
+    out = smgen("preview", "--setup", "arm", "--seed", 1, "--out", tmp_path / "world", "--frames", 16)
+    assert out.exit_code == 0, out.output
+    room = np.asarray(Image.open(tmp_path / "world" / "room.png"))
+    frames = np.asarray(Image.open(tmp_path / "world" / "frames.png"))
+    assert room.shape == (512, 512, 3) and room.std() > 10
+    assert frames.shape[0] > 200 and frames.std() > 10
+    out = smgen("preview", "arm-seed0-MM", "--lake", SAMPLES, "--out", tmp_path / "ds")
+    assert out.exit_code == 0 and (tmp_path / "ds" / "frames.png").exists()
+    out = smgen("preview", "grid-seed0-MM", "--lake", SAMPLES, "--out", tmp_path / "grid")
+    assert out.exit_code == 0 and (tmp_path / "grid" / "sensory_table.png").exists()
+    assert smgen("preview", "--out", tmp_path / "x").exit_code == 2
+
+
+def test_training_on_images(tmp_path):
+    from train.cli import main as smtrain_main
+    from train.run_dir import RunDir
+
+    from .conftest import SAMPLES
+
+    result = CliRunner().invoke(
+        smtrain_main,
+        [
+            "fit",
+            "arm-seed0-MME",
+            "--lake",
+            str(SAMPLES),
+            "--steps",
+            "200",
+            "--eval-every",
+            "100",
+            "--out",
+            str(tmp_path / "run"),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    rows = RunDir.open(tmp_path / "run").metrics()
+    assert rows[-1]["eval_loss"] < 0.7 * rows[0]["eval_loss"]
+    h, p = RunDir.open(tmp_path / "run").embeddings(200)
+    assert h.shape == (216, 3) and p.shape == (216, 2)

@@ -10,23 +10,25 @@ import pyarrow.parquet as pq
 from .conftest import SAMPLES, smgen
 
 
-def recorded_command() -> list[str]:
+def recorded_commands() -> list[list[str]]:
     text = (SAMPLES / "README.md").read_text()
-    line = next(ln.strip() for ln in text.splitlines() if ln.strip().startswith("smgen generate"))
-    return shlex.split(line)[1:]
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith("smgen generate")]
+    return [shlex.split(line)[1:] for line in lines]
 
 
 def test_samples_regenerate_byte_identical(tmp_path):
-    args = recorded_command()
-    args[args.index("--lake") + 1] = str(tmp_path)
-    result = smgen(*args)
-    assert result.exit_code == 0, result.output
+    commands = recorded_commands()
+    assert len(commands) == 2
+    for args in commands:
+        args[args.index("--lake") + 1] = str(tmp_path)
+        result = smgen(*args)
+        assert result.exit_code == 0, result.output
     committed = sorted(p.relative_to(SAMPLES) for p in SAMPLES.rglob("*.mcap"))
-    assert len(committed) == 9
+    assert len(committed) == 18
     assert committed == sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*.mcap"))
     for rel in committed:
         assert (tmp_path / rel).read_bytes() == (SAMPLES / rel).read_bytes(), rel
-    for folder in SAMPLES.glob("grid-*"):
+    for folder in [*SAMPLES.glob("grid-*"), *SAMPLES.glob("arm-*")]:
         a = json.loads((folder / "manifest.json").read_text())
         b = json.loads((tmp_path / folder.name / "manifest.json").read_text())
         a.pop("software"), b.pop("software")  # library versions may move; the data may not
@@ -35,6 +37,7 @@ def test_samples_regenerate_byte_identical(tmp_path):
 
 
 def test_samples_validate():
-    ids = [p.name for p in sorted(SAMPLES.glob("grid-*"))]
+    ids = [p.parent.name for p in sorted(SAMPLES.glob("*/manifest.json"))]
+    assert len(ids) == 6
     result = smgen("validate", "--lake", SAMPLES, *ids)
     assert result.exit_code == 0, result.output

@@ -14,6 +14,7 @@ class Setup:
     name: str
     n_motor: int
     default_transitions: int
+    default_shard_size: int  # transitions per shard: arm shards are smaller so workers stay balanced
     shift_bound: float  # |shift component| ≤ shift_bound (the MM shift may sit outside: it is fixed)
     build: Callable[[int], World]
     description: str
@@ -45,12 +46,47 @@ def _arm(n_motor: int) -> Callable[[int], World]:
 
 
 SETUPS: dict[str, Setup] = {
-    "grid": Setup("grid", 3, 150_000, 10.0, _grid(3), "10×10 torus, 3 motors, 4 sensors (SPEC 2.1)"),
-    "grid6": Setup("grid6", 6, 150_000, 10.0, _grid(6), "10×10 torus, 6 mixed motors (SPEC 2.2)"),
-    "arm": Setup(
-        "arm", 3, 150_000, 1.75, _arm(3), "3-joint arm with a 16×16 camera in a room (SPEC 2.3)", _render_device
-    ),
-    "arm6": Setup("arm6", 6, 300_000, 1.75, _arm(6), "6-joint arm (2 prismatic) in a room (SPEC 2.4)", _render_device),
+    s.name: s
+    for s in (
+        Setup(
+            "grid",
+            n_motor=3,
+            default_transitions=150_000,
+            default_shard_size=32768,
+            shift_bound=10.0,
+            build=_grid(3),
+            description="10×10 torus, 3 motors, 4 sensors (SPEC 2.1)",
+        ),
+        Setup(
+            "grid6",
+            n_motor=6,
+            default_transitions=150_000,
+            default_shard_size=32768,
+            shift_bound=10.0,
+            build=_grid(6),
+            description="10×10 torus, 6 mixed motors (SPEC 2.2)",
+        ),
+        Setup(
+            "arm",
+            n_motor=3,
+            default_transitions=150_000,
+            default_shard_size=8192,
+            shift_bound=1.75,
+            build=_arm(3),
+            description="3-joint arm with a 16×16 camera in a room (SPEC 2.3)",
+            preflight=_render_device,
+        ),
+        Setup(
+            "arm6",
+            n_motor=6,
+            default_transitions=300_000,
+            default_shard_size=8192,
+            shift_bound=1.75,
+            build=_arm(6),
+            description="6-joint arm (2 prismatic) in a room (SPEC 2.4)",
+            preflight=_render_device,
+        ),
+    )
 }
 
 
