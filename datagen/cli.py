@@ -11,6 +11,7 @@ import click
 from datagen.cliutil import LAKE_OPTION, friendly_errors
 from datagen.errors import SmspaceError
 from datagen.lake.dataset import default_lake
+from datagen.rerun_output import view_options
 
 
 @click.group(name="smgen", context_settings={"help_option_names": ["-h", "--help"]})
@@ -147,6 +148,39 @@ def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
         s_t = world.sense(p, np.zeros_like(p))
     for path in write_previews(out, world, s_t):
         click.echo(str(path))
+
+
+@main.command()
+@click.argument("dataset")
+@LAKE_OPTION
+@click.option("--limit", type=click.IntRange(min=1), default=None, help="Only the first N transitions.")
+@view_options
+@friendly_errors
+def view(dataset, lake, limit, output) -> None:
+    """Replay a dataset in rerun: frames, motors, egocentric positions, shift, room map, metadata."""
+    from datagen.lake.dataset import Dataset
+    from datagen.view import view_dataset
+
+    ds = Dataset.open(dataset, lake)
+    n = view_dataset(ds, limit, output)
+    if output.save:
+        click.echo(f"{output.save}\t{n} transitions")
+
+
+@main.command()
+@click.argument("dataset")
+@LAKE_OPTION
+@click.option("--format", "fmt", type=click.Choice(["foxglove", "parquet"]), required=True)
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The file to write.")
+@click.option("--limit", type=click.IntRange(min=1), default=None, help="Only the first N transitions.")
+@friendly_errors
+def export(dataset, lake, fmt, out, limit) -> None:
+    """Export a dataset: per-transition MCAP with Foxglove schemas, or Parquet."""
+    from datagen.export import export as run
+    from datagen.lake.dataset import Dataset
+
+    n = run(Dataset.open(dataset, lake), fmt, out, limit)
+    click.echo(f"{out}\t{n} transitions")
 
 
 if __name__ == "__main__":

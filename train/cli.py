@@ -11,6 +11,7 @@ import click
 
 from datagen.cliutil import LAKE_OPTION, friendly_errors
 from datagen.errors import SmspaceError
+from datagen.rerun_output import view_options
 
 RUNS = Path("runs")
 
@@ -196,6 +197,20 @@ def info(run, as_json) -> None:
         if key != "config":
             click.echo(f"{key:>12}: {value}")
     click.echo(f"{'config':>12}: {json.dumps(summary['config'])}")
+
+
+@main.command()
+@click.argument("run", type=click.Path(path_type=Path))
+@view_options
+@friendly_errors
+def view(run, output) -> None:
+    """Replay a run in rerun: h coloured by p, the affine projection, curves, predictions."""
+    from train.run_dir import RunDir
+    from train.view import view_run
+
+    n = view_run(RunDir.open(run), output)
+    if output.save:
+        click.echo(f"{output.save}\t{n} evaluations")
 
 
 if __name__ == "__main__":

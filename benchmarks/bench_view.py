@@ -1,0 +1,51 @@
+"""Logging a dataset to an .rrd with `smgen view --save` (column-wise send_columns).
+
+Prints one JSON object: seconds to read + log N transitions, the .rrd size. Generation of the
+dataset is not timed. Usage: python benchmarks/bench_view.py [--setup grid] [--transitions 150000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+from datagen.generate import generate
+from datagen.lake.dataset import Dataset
+from datagen.rerun_output import ViewOutput
+from datagen.view import view_dataset
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--setup", default="grid")
+    ap.add_argument("--transitions", type=int, default=150_000)
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        shard = 32768 if args.setup.startswith("grid") else 8192
+        generate(Path(tmp), args.setup, ["MME"], [0], args.transitions, shard, workers=args.workers)
+        ds = Dataset(Path(tmp) / f"{args.setup}-seed0-MME")
+        out = Path(tmp) / "view.rrd"
+        t0 = time.perf_counter()
+        n = view_dataset(ds, None, ViewOutput(save=out))
+        seconds = time.perf_counter() - t0
+        size = out.stat().st_size
+    print(
+        json.dumps(
+            {
+                "benchmark": "view",
+                "setup": args.setup,
+                "transitions": n,
+                "seconds": round(seconds, 2),
+                "transitions_per_s": round(n / seconds),
+                "rrd_bytes": size,
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,124 @@
+"""Where a rerun recording goes: an .rrd file, a web viewer on 127.0.0.1, or a spawned viewer.
+
+The rerun CLI binds 0.0.0.0 unless told otherwise, and killing its Python wrapper leaves the real
+binary running (research/mcap-rerun-probe.md P3, P4): the web viewer here is the binary itself,
+bound to 127.0.0.1, in its own process group, which Ctrl-C takes down whole.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import click
+
+from datagen.errors import SmspaceError
+
+
+@dataclass(frozen=True)
+class ViewOutput:
+    save: Path | None = None
+    web: bool = False
+    web_port: int = 9090
+    grpc_port: int = 9876
+
+
+def view_options(fn: Callable) -> Callable:
+    """The standard output flags of `smgen view` and `smtrain view`."""
+
+    @click.option("--save", type=click.Path(path_type=Path), default=None, help="Write an .rrd file instead.")
+    @click.option("--web", is_flag=True, help="Serve a web viewer on 127.0.0.1 (Ctrl-C stops it).")
+    @click.option("--web-port", type=click.IntRange(1, 65535), default=9090, show_default=True)
+    @click.option("--grpc-port", type=click.IntRange(1, 65535), default=9876, show_default=True)
+    @functools.wraps(fn)
+    def wrapper(*args, save, web, web_port, grpc_port, **kwargs):
+        return fn(*args, output=ViewOutput(save, web, web_port, grpc_port), **kwargs)
+
+    return wrapper
+
+
+def rerun_binary() -> Path:
+    import rerun_cli
+
+    binary = Path(rerun_cli.__file__).parent / "rerun"
+    if not binary.exists():
+        raise SmspaceError(f"the rerun viewer binary is missing ({binary}); reinstall rerun-sdk")
+    return binary
+
+
+@contextmanager
+def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput) -> Iterator:
+    """A RecordingStream whose data ends up where the flags say; yields it for logging."""
+    import rerun as rr
+
+    save, web = output.save, output.web
+    if save is not None and web:
+        raise SmspaceError("choose one of --save and --web")
+    rec = rr.RecordingStream(app_id, recording_id=recording_id)
+    tmp = None
+    if save is not None:
+        try:
+            save.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise SmspaceError(f"cannot write {save}: {e.strerror or e}") from e
+        rec.save(save, default_blueprint=blueprint)
+    elif web:
+        tmp = tempfile.NamedTemporaryFile(prefix="smspace-", suffix=".rrd", delete=False)  # noqa: SIM115
+        tmp.close()
+        rec.save(tmp.name, default_blueprint=blueprint)
+    else:
+        try:
+            rec.spawn(default_blueprint=blueprint)
+        except Exception as e:
+            raise SmspaceError(f"could not start a rerun viewer ({e}); use --save FILE.rrd or --web") from e
+    try:
+        yield rec
+    finally:
+        rec.flush()
+        rec.disconnect()
+    if tmp is not None:
+        try:
+            serve_web(Path(tmp.name), output.web_port, output.grpc_port)
+        finally:
+            Path(tmp.name).unlink(missing_ok=True)
+
+
+def serve_web(rrd: Path, web_port: int = 9090, grpc_port: int = 9876) -> None:
+    """Run the viewer binary on 127.0.0.1 until Ctrl-C; then stop its whole process group."""
+    cmd = [
+        str(rerun_binary()),
+        "--web-viewer",
+        "--bind",
+        "127.0.0.1",
+        "--web-viewer-port",
+        str(web_port),
+        "--port",
+        str(grpc_port),
+        str(rrd),
+    ]
+    env = {**os.environ, "RERUN_ANALYTICS": "0"}
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    click.echo(f"web viewer: http://127.0.0.1:{web_port}  (Ctrl-C to stop)", err=True)
+    try:
+        code = proc.wait()
+        if code != 0:
+            raise SmspaceError(f"the rerun web viewer exited with {code}: {proc.stderr.read().decode()[-300:]}")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        sys.stderr.flush()

@@ -1,0 +1,129 @@
+"""`smgen view`: replay a dataset in rerun on a `transition` timeline, logged column-wise."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from datagen.lake.dataset import Dataset
+from datagen.rerun_output import ViewOutput, recording
+from datagen.setups.base import Transitions
+
+BLUE, ORANGE, GREY = (40, 110, 230), (240, 140, 20), (150, 150, 150)
+
+
+def read_head(ds: Dataset, limit: int | None) -> Transitions:
+    parts, have = [], 0
+    for block in ds.blocks():
+        parts.append(block.transitions)
+        have += len(block.transitions)
+        if limit is not None and have >= limit:
+            break
+    fields = Transitions.__dataclass_fields__
+    return Transitions(**{f: np.concatenate([getattr(p, f) for p in parts])[:limit] for f in fields})
+
+
+def metadata_markdown(ds: Dataset) -> str:
+    m = ds.manifest
+    rows = "\n".join(f"| {k} | `{v}` |" for k, v in m.summary().items())
+    return (
+        f"# {m.dataset_id}\n\n| field | value |\n|---|---|\n{rows}\n\n"
+        f"## Generator config\n\n```json\n{json.dumps(m.config, indent=1)}\n```\n\n"
+        f"## Software\n\n```json\n{json.dumps(m.software, indent=1)}\n```\n"
+    )
+
+
+def blueprint(images: bool, room_map: bool):
+    import rerun.blueprint as rrb
+
+    if images:
+        sensors = rrb.Vertical(
+            rrb.Spatial2DView(origin="sensor/s_t", name="s_t"), rrb.Spatial2DView(origin="sensor/s_t1", name="s_t1")
+        )
+    else:
+        sensors = rrb.Vertical(
+            rrb.TimeSeriesView(origin="sensor/s_t", name="s_t"), rrb.TimeSeriesView(origin="sensor/s_t1", name="s_t1")
+        )
+    places = [rrb.Spatial2DView(origin="ego", name="egocentric p_t (blue), p_t1 (orange)")]
+    if room_map:
+        places.append(rrb.Spatial2DView(origin="map", name="room from above: camera at t, t+1"))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            sensors,
+            rrb.Vertical(*places),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin="motor", name="motors"),
+                rrb.TimeSeriesView(origin="shift", name="shift (privileged)"),
+                rrb.TextDocumentView(origin="dataset", name="dataset"),
+            ),
+        ),
+        collapse_panels=True,
+    )
+
+
+def _series(rec, path: str, times, values: np.ndarray, names: list[str]) -> None:
+    import rerun as rr
+
+    n, k = values.shape
+    rec.log(path, rr.SeriesLines(names=names), static=True)
+    rec.send_columns(path, indexes=times, columns=rr.Scalars.columns(scalars=values.reshape(-1)).partition([k] * n))
+
+
+def view_dataset(ds: Dataset, limit: int | None, output: ViewOutput) -> int:
+    import rerun as rr
+
+    tr = read_head(ds, limit)
+    n = len(tr)
+    images = tr.s_t.dtype == np.uint8
+    world = None
+    if ds.manifest.setup.startswith("arm"):
+        from datagen.generate import world_for
+
+        world = world_for(ds.manifest.setup, ds.manifest.world_seed)
+    with recording("smspace", ds.manifest.dataset_id, blueprint(images, world is not None), output) as rec:
+        times = [rr.TimeColumn("transition", sequence=np.arange(n))]
+        rec.log("dataset", rr.TextDocument(metadata_markdown(ds), media_type=rr.MediaType.MARKDOWN), static=True)
+        for name in ("s_t", "s_t1"):
+            s = getattr(tr, name)
+            if images:
+                h, w, _ = s.shape[1:]
+                fmt = rr.components.ImageFormat(width=w, height=h, color_model="RGB", channel_datatype="U8")
+                rec.log(f"sensor/{name}", rr.Image.from_fields(format=fmt), static=True)
+                rec.send_columns(f"sensor/{name}", indexes=times, columns=rr.Image.columns(buffer=s.reshape(n, -1)))
+            else:
+                _series(rec, f"sensor/{name}", times, s, [f"{name}[{i}]" for i in range(s.shape[1])])
+        for name in ("m_t", "m_t1"):
+            m = getattr(tr, name)
+            _series(rec, f"motor/{name}", times, m, [f"{name}[{i}]" for i in range(m.shape[1])])
+        _series(rec, "shift/t", times, tr.shift_t, ["shift_t x", "shift_t y"])
+        _series(rec, "shift/t1", times, tr.shift_t1, ["shift_t1 x", "shift_t1 y"])
+        _, p_reg = ds.regular_sampling()
+        rec.log("ego/reachable", rr.Points2D(np.unique(p_reg, axis=0), colors=GREY, radii=0.03), static=True)
+        for name, colour in (("p_t", BLUE), ("p_t1", ORANGE)):
+            rec.send_columns(
+                f"ego/{name}",
+                indexes=times,
+                columns=rr.Points2D.columns(positions=getattr(tr, name), colors=[colour] * n, radii=[0.06] * n),
+            )
+        if world is not None:
+            _log_room_map(rec, world, tr, times)
+    return n
+
+
+def _log_room_map(rec, world, tr: Transitions, times) -> None:
+    import rerun as rr
+
+    from datagen.preview import room_map
+    from datagen.setups.arm import overhead_pixel
+
+    rec.log("map/room", rr.Image(np.asarray(room_map(world))), static=True)
+    n = len(tr)
+    for name, p, shift, colour in (("camera_t", tr.p_t, tr.shift_t, BLUE), ("camera_t1", tr.p_t1, tr.shift_t1, ORANGE)):
+        xy = (p + shift).astype(np.float64)
+        px = np.stack(overhead_pixel(xy[:, 0], xy[:, 1]), axis=1)
+        rec.send_columns(
+            f"map/{name}",
+            indexes=times,
+            columns=rr.Points2D.columns(positions=px, colors=[colour] * n, radii=[5.0] * n),
+        )
