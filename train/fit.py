@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -20,13 +19,11 @@ from tqdm import tqdm
 
 from datagen.errors import SmspaceError
 from datagen.lake.dataset import Dataset
-from metrics import spatial_scores
 from train.config import TrainConfig, learning_rate
-from train.loader import TransitionStream, normalisers
+from train.evaluation import N_PREDICTIONS, EvalData, scores_row, write_evaluation
+from train.loader import TransitionStream
 from train.model import SensorimotorNet, prediction_loss
 from train.run_dir import RunDir
-
-N_PREDICTIONS = 16  # predicted vs true s_t1 kept per evaluation, for viewers and reports
 
 
 class TrainingFailed(SmspaceError):
@@ -43,52 +40,12 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-@dataclass
-class EvalData:
-    """What every evaluation looks at: the regular sampling and a fixed set of transitions."""
-
-    m_regular: torch.Tensor  # normalised with the dataset's motor statistics
-    p_regular: np.ndarray
-    m_t: torch.Tensor
-    s_t: torch.Tensor
-    m_t1: torch.Tensor
-    s_t1: torch.Tensor
-
-    @classmethod
-    def load(cls, ds: Dataset, n: int, device: torch.device) -> EvalData:
-        m_norm, s_norm = normalisers(ds.manifest)
-        m_reg, p_reg = ds.regular_sampling()
-        parts, have = [], 0
-        for block in ds.blocks():
-            parts.append(block.transitions)
-            have += len(block.transitions)
-            if have >= n:
-                break
-
-        def col(name: str, norm) -> torch.Tensor:
-            return torch.from_numpy(norm(np.concatenate([getattr(t, name) for t in parts])[:n])).to(device)
-
-        return cls(
-            torch.from_numpy(m_norm(m_reg)).to(device),
-            p_reg.astype(np.float64),
-            col("m_t", m_norm),
-            col("s_t", s_norm),
-            col("m_t1", m_norm),
-            col("s_t1", s_norm),
-        )
-
-
 @torch.no_grad()
 def evaluate(model: SensorimotorNet, data: EvalData) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
     h = model.encode(data.m_regular).double().cpu().numpy()
     pred = model(data.m_t, data.s_t, data.m_t1)
     loss = float(prediction_loss(pred, data.s_t1))
-    scores = spatial_scores(h, data.p_regular)
-    return (
-        {"eval_loss": loss, "d_topo": scores.d_topo, "d_metric": scores.d_metric},
-        h,
-        pred[:N_PREDICTIONS].cpu().numpy(),
-    )
+    return scores_row(h, data.p_regular, loss), h, pred[:N_PREDICTIONS].cpu().numpy()
 
 
 def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):
@@ -124,20 +81,14 @@ def fit(cfg: TrainConfig, run: RunDir, resume: bool = False) -> dict[str, Any]:
     def record(step: int, train_loss: float) -> dict[str, Any]:
         scores, h, pred = evaluate(model, data)
         row = {"step": step, "lr": learning_rate(cfg, step), "train_loss": train_loss, **scores, "elapsed_s": elapsed}
-        rows.append(row)
-        extra = {"s_t1_pred": pred} | ({"s_t1_true": data.s_t1[:N_PREDICTIONS].cpu().numpy()} if step == 0 else {})
-        run.write_embeddings(step, h, data.p_regular, extra)
-        run.write_metrics(rows)
-        run.save_checkpoint(
-            {
-                "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "stream": stream.state_dict(),
-                "step": step,
-                "elapsed_s": elapsed,
-            }
-        )
-        run.set_status("running", step)
+        checkpoint = {
+            "model": model.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "stream": stream.state_dict(),
+            "step": step,
+            "elapsed_s": elapsed,
+        }
+        write_evaluation(run, rows, row, h, data, pred, checkpoint)
         return row
 
     if step == 0:

@@ -1,0 +1,76 @@
+"""What an evaluation looks at and how it is written into a run folder (shared by fit and sweep)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from datagen.lake.dataset import Dataset
+from metrics import spatial_scores
+from train.loader import normalisers
+from train.run_dir import RunDir
+
+N_PREDICTIONS = 16  # predicted vs true s_t1 kept per evaluation, for viewers and reports
+
+
+@dataclass
+class EvalData:
+    """What every evaluation looks at: the regular sampling and a fixed set of transitions."""
+
+    m_regular: torch.Tensor  # normalised with the dataset's motor statistics
+    p_regular: np.ndarray
+    m_t: torch.Tensor
+    s_t: torch.Tensor
+    m_t1: torch.Tensor
+    s_t1: torch.Tensor
+
+    @classmethod
+    def load(cls, ds: Dataset, n: int, device: torch.device) -> EvalData:
+        m_norm, s_norm = normalisers(ds.manifest)
+        m_reg, p_reg = ds.regular_sampling()
+        parts, have = [], 0
+        for block in ds.blocks():
+            parts.append(block.transitions)
+            have += len(block.transitions)
+            if have >= n:
+                break
+
+        def col(name: str, norm) -> torch.Tensor:
+            return torch.from_numpy(norm(np.concatenate([getattr(t, name) for t in parts])[:n])).to(device)
+
+        return cls(
+            torch.from_numpy(m_norm(m_reg)).to(device),
+            p_reg.astype(np.float64),
+            col("m_t", m_norm),
+            col("s_t", s_norm),
+            col("m_t1", m_norm),
+            col("s_t1", s_norm),
+        )
+
+
+def scores_row(h: np.ndarray, p: np.ndarray, eval_loss: float) -> dict[str, float]:
+    scores = spatial_scores(h, p)
+    return {"eval_loss": eval_loss, "d_topo": scores.d_topo, "d_metric": scores.d_metric}
+
+
+def write_evaluation(
+    run: RunDir,
+    rows: list[dict[str, Any]],
+    row: dict[str, Any],
+    h: np.ndarray,
+    data: EvalData,
+    pred: np.ndarray,
+    checkpoint: dict[str, Any],
+) -> None:
+    """Metrics row, h with p, predictions, then the checkpoint: in this order, so a kill between
+    two writes leaves the checkpoint at or behind the metrics (resume trims them back)."""
+    rows.append(row)
+    step = row["step"]
+    extra = {"s_t1_pred": pred} | ({"s_t1_true": data.s_t1[:N_PREDICTIONS].cpu().numpy()} if step == 0 else {})
+    run.write_embeddings(step, h, data.p_regular, extra)
+    run.write_metrics(rows)
+    run.save_checkpoint(checkpoint)
+    run.set_status("running", step)
