@@ -132,6 +132,97 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
     click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
 
 
+@main.command()
+@click.option("--setup", "setup_name", required=True, help="grid, grid6, arm, arm6")
+@click.option("--modes", default="MEM,MM,MME", show_default=True)
+@click.option("--worlds", type=click.IntRange(min=1), default=50, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="First world seed.")
+@click.option("--transitions", type=click.IntRange(min=1), default=None, help="[setup default]")
+@click.option("--gen-workers", type=click.IntRange(min=1), default=1, show_default=True)
+@LAKE_OPTION
+@click.option("--out", type=click.Path(path_type=Path), default=RUNS, show_default=True)
+@click.option("--steps", type=click.IntRange(min=1), default=100_000, show_default=True)
+@click.option("--batch-size", type=click.IntRange(min=1), default=100, show_default=True)
+@click.option("--nh", type=click.IntRange(min=1), default=3, show_default=True)
+@click.option("--encoder-layers", callback=int_list, help="[default: the paper's for N_m]")
+@click.option("--predictor-layers", callback=int_list, help="[default: 200,150,100]")
+@click.option("--eval-every", type=click.IntRange(min=1), default=1000, show_default=True)
+@click.option("--device", default="cpu", show_default=True)
+@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True)
+@click.option(
+    "--max-ensemble", type=click.IntRange(min=1), default=150, show_default=True, help="Runs per vectorised model."
+)
+@click.option("--overwrite", is_flag=True, help="Replace runs in --out made with another config.")
+@friendly_errors
+def sweep(
+    setup_name,
+    modes,
+    worlds,
+    seed,
+    transitions,
+    gen_workers,
+    lake,
+    out,
+    steps,
+    batch_size,
+    nh,
+    encoder_layers,
+    predictor_layers,
+    eval_every,
+    device,
+    threads,
+    max_ensemble,
+    overwrite,
+) -> None:
+    """Generate missing datasets, then train every (world, mode) run as vectorised ensembles."""
+    from datagen.lake.dataset import default_lake
+    from datagen.setups import check_mode, get_setup
+    from train.config import TrainConfig
+    from train.fit import resolve_device
+    from train.sweep import sweep as run_sweep
+
+    get_setup(setup_name)
+    mode_list = [check_mode(m.strip()) for m in modes.split(",") if m.strip()]
+    resolve_device(device)
+    template = TrainConfig(
+        dataset="",
+        steps=steps,
+        batch_size=batch_size,
+        n_h=nh,
+        encoder_layers=encoder_layers or [],
+        predictor_layers=predictor_layers or [200, 150, 100],
+        eval_every=eval_every,
+        device=device,
+        threads=threads,
+    )
+    runs = run_sweep(
+        setup_name,
+        mode_list,
+        list(range(seed, seed + worlds)),
+        template,
+        lake or default_lake(),
+        out,
+        transitions,
+        gen_workers,
+        max_ensemble,
+        overwrite,
+    )
+    for run in runs:
+        click.echo(str(run.path))
+
+
+@main.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder for figures and tables.")
+@friendly_errors
+def report(runs, out) -> None:
+    """Draw the paper's figures and the table of final values from run folders."""
+    from train.report import report as run_report
+
+    for path in run_report(list(runs), out):
+        click.echo(str(path))
+
+
 def _run_summary(path: Path) -> dict:
     from train.run_dir import RunDir
 

@@ -70,8 +70,11 @@ class RunDir:
             run.path.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise SmspaceError(f"cannot create run folder {run.path}: {e.strerror or e}") from e
-        write_atomic(run.path / CONFIG, (json.dumps(cfg.to_dict(), indent=1) + "\n").encode())
+        run.write_config(cfg)
         return run
+
+    def write_config(self, cfg: TrainConfig) -> None:
+        write_atomic(self.path / CONFIG, (json.dumps(cfg.to_dict(), indent=1) + "\n").encode())
 
     @classmethod
     def open(cls, path: Path) -> RunDir:

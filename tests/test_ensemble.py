@@ -1,0 +1,97 @@
+"""Vectorised ensembles: a run trained inside one is the run trained alone; sweeps and reports."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from train.cli import main as smtrain_main
+from train.config import TrainConfig
+from train.ensemble import train_ensemble
+from train.fit import fit
+from train.run_dir import RunDir
+
+from .conftest import SAMPLES
+
+
+def smtrain(*args):
+    return CliRunner().invoke(smtrain_main, [str(a) for a in args], prog_name="smtrain")
+
+
+def config(mode: str, seed: int, steps: int = 60) -> TrainConfig:
+    ds = SAMPLES / f"grid-seed0-{mode}"
+    return TrainConfig(dataset=str(ds), dataset_id=ds.name, steps=steps, eval_every=30, seed=seed)
+
+
+def test_a_run_inside_an_ensemble_is_the_run_trained_alone(tmp_path):
+    cfgs = [config("MEM", 11), config("MM", 12), config("MME", 13)]
+    members = [RunDir.create(tmp_path / f"ensemble{i}", c, False) for i, c in enumerate(cfgs)]
+    train_ensemble(members, progress=False)
+    for i, cfg in enumerate(cfgs):
+        alone = RunDir.create(tmp_path / f"alone{i}", cfg, False)
+        fit(cfg, alone)
+        a, b = alone.metrics(), members[i].metrics()
+        assert [r["step"] for r in a] == [r["step"] for r in b] == [0, 30, 60]
+        assert a[0]["eval_loss"] == pytest.approx(b[0]["eval_loss"], rel=1e-6)  # same initial weights
+        for ra, rb in zip(a, b, strict=True):
+            for key in ("eval_loss", "d_topo", "d_metric"):
+                assert ra[key] == pytest.approx(rb[key], rel=1e-3, abs=1e-6), key
+        ca = torch.load(alone.path / "checkpoint.pt", weights_only=True)
+        cb = torch.load(members[i].path / "checkpoint.pt", weights_only=True)
+        assert ca["model"].keys() == cb["model"].keys()
+        for name, tensor in ca["model"].items():
+            torch.testing.assert_close(cb["model"][name], tensor, rtol=1e-3, atol=1e-4)
+        for key in ("exp_avg", "exp_avg_sq"):  # the Adam state is the lone run's, slice by slice
+            torch.testing.assert_close(cb["optimizer"]["state"][0][key], ca["optimizer"]["state"][0][key],
+                                       rtol=1e-2, atol=1e-6)
+        assert ca["stream"] == cb["stream"]
+
+
+def test_sweep_generates_trains_resumes_and_reports(tmp_path):
+    lake, out = tmp_path / "lake", tmp_path / "runs"
+    args = ["sweep", "--setup", "grid", "--worlds", 2, "--seed", 5, "--transitions", 2500, "--steps", 40,
+            "--eval-every", 20, "--lake", lake, "--out", out]
+    result = smtrain(*args)
+    assert result.exit_code == 0, result.output
+    folders = sorted(out.iterdir())
+    assert [f.name for f in folders] == [f"grid-seed{w}-{m}-nh3-seed{w}" for w in (5, 6) for m in ("MEM", "MM", "MME")]
+    for folder in folders:
+        run = RunDir.open(folder)
+        assert [r["step"] for r in run.metrics()] == [0, 20, 40] and run.status()["state"] == "finished"
+        assert run.embeddings(40)[0].shape == (125, 3)
+    before = (folders[0] / "checkpoint.pt").read_bytes()
+    assert smtrain(*args).exit_code == 0  # finished runs are left alone
+    assert (folders[0] / "checkpoint.pt").read_bytes() == before
+    extended = smtrain(*args[:-6], "--steps", 60, "--eval-every", 20, "--lake", lake, "--out", out)
+    assert extended.exit_code == 0, extended.output
+    assert all(RunDir.open(f).metrics()[-1]["step"] == 60 for f in folders)
+    # a sweep run is an ordinary run folder: fit --resume continues it, view and report read it
+    resumed = smtrain("fit", "--resume", folders[1], "--steps", 80)
+    assert resumed.exit_code == 0, resumed.output
+    assert json.loads(resumed.output.strip().splitlines()[-1])["step"] == 80
+    refused = smtrain(*args[:-6], "--steps", 60, "--batch-size", 50, "--lake", lake, "--out", out)
+    assert refused.exit_code == 2 and "batch_size" in refused.output
+
+    report = tmp_path / "report"
+    result = smtrain("report", *folders, "--out", report)
+    assert result.exit_code == 0, result.output
+    for name in ("curves.png", "projection_MEM.png", "projection_MM.png", "projection_MME.png", "final.csv",
+                 "final.md", "runs.csv"):
+        assert (report / name).stat().st_size > 100, name
+    with open(report / "final.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["mode"] for r in rows] == ["MEM", "MM", "MME"] and all(r["runs"] == "2" for r in rows)
+    mem = [RunDir.open(f).metrics()[-1]["d_metric"] for f in folders if "-MEM-" in f.name]
+    assert float(rows[0]["d_metric_mean"]) == pytest.approx(np.mean(mem))
+    assert "| MME | 2 |" in (report / "final.md").read_text()
+
+
+def test_report_needs_evaluated_runs(tmp_path):
+    RunDir.create(tmp_path / "empty", config("MM", 1), False)
+    result = smtrain("report", tmp_path / "empty", "--out", tmp_path / "r")
+    assert result.exit_code == 2 and "no evaluations" in result.output

@@ -1,0 +1,172 @@
+"""`smtrain report`: the paper's figures and a table of final values, drawn from real run folders."""
+
+from __future__ import annotations
+
+import csv
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from datagen.errors import SmspaceError
+from datagen.lake.dataset import Dataset
+from metrics import affine_projection
+from train.loader import normalisers
+from train.run_dir import EMBEDDINGS, RunDir
+
+MODE_COLOURS = {"MEM": "tab:red", "MM": "tab:green", "MME": "tab:blue"}
+METRICS = (("eval_loss", "loss"), ("d_topo", "D_topo"), ("d_metric", "D_metric"))
+
+
+@dataclass
+class RunData:
+    run: RunDir
+    mode: str
+    rows: list[dict[str, Any]]
+
+    @property
+    def name(self) -> str:
+        return self.run.path.name
+
+    def column(self, key: str) -> np.ndarray:
+        return np.array([r[key] for r in self.rows], np.float64)
+
+
+def load_runs(paths: list[Path]) -> list[RunData]:
+    runs = []
+    for path in paths:
+        run = RunDir.open(path)
+        rows = run.metrics()
+        if not rows:
+            raise SmspaceError(f"{path} has no evaluations yet")
+        mode = run.config.dataset_id.rsplit("-", 1)[-1]
+        runs.append(RunData(run, mode, rows))
+    return runs
+
+
+def by_mode(runs: list[RunData]) -> dict[str, list[RunData]]:
+    groups: dict[str, list[RunData]] = defaultdict(list)
+    for r in runs:
+        groups[r.mode].append(r)
+    order = [m for m in MODE_COLOURS if m in groups] + sorted(m for m in groups if m not in MODE_COLOURS)
+    return {m: groups[m] for m in order}
+
+
+def curves_figure(groups: dict[str, list[RunData]], path: Path) -> None:
+    """Loss, D_topo, D_metric against step: mean ± std over runs per mode, faint per-run lines."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for ax, (key, label) in zip(axes, METRICS, strict=True):
+        for mode, runs in groups.items():
+            colour = MODE_COLOURS.get(mode, "tab:gray")
+            length = min(len(r.rows) for r in runs)  # runs still in progress are cut to the shortest
+            steps = runs[0].column("step")[:length]
+            values = np.stack([r.column(key)[:length] for r in runs])
+            for v in values:
+                ax.plot(steps, v, color=colour, alpha=0.15, linewidth=0.7)
+            mean, std = values.mean(0), values.std(0)
+            ax.plot(steps, mean, color=colour, linewidth=2, label=f"{mode} (n={len(runs)})")
+            ax.fill_between(steps, mean - std, mean + std, color=colour, alpha=0.3)
+        ax.set_xlabel("step")
+        ax.set_title(label)
+        if key != "d_metric":
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def projection_figure(run: RunData, path: Path) -> None:
+    """Normalised regular motors, h, p with ĥ (and lines), predicted vs true s_t1 (first 3 dims)."""
+    import matplotlib.pyplot as plt
+
+    step = int(run.rows[-1]["step"])
+    h, p = run.run.embeddings(step)
+    h, p = h.astype(np.float64), p.astype(np.float64)
+    h_hat = affine_projection(h, p)
+    last = run.rows[-1]
+    fig = plt.figure(figsize=(20, 5))
+    ax = fig.add_subplot(1, 4, 1, projection="3d")
+    try:
+        ds = Dataset(run.run.config.dataset)
+        m_norm, _ = normalisers(ds.manifest)
+        m = m_norm(ds.regular_sampling()[0])
+        ax.scatter(*np.pad(m[:, :3], ((0, 0), (0, max(0, 3 - m.shape[1])))).T, s=8, color="tab:blue")
+    except SmspaceError:
+        ax.text2D(0.1, 0.5, "dataset not available", transform=ax.transAxes)
+    ax.set_title("motor space (normalised regular sampling)")
+    ax = fig.add_subplot(1, 4, 2, projection="3d")
+    h3 = np.pad(h[:, :3], ((0, 0), (0, max(0, 3 - h.shape[1]))))
+    ax.scatter(*h3.T, s=8, color="tab:red")
+    ax.set_title(f"encoding space h   D_topo = {last['d_topo']:.2e}")
+    ax = fig.add_subplot(1, 4, 3)
+    for a, b in zip(p, h_hat, strict=True):
+        ax.plot([a[0], b[0]], [a[1], b[1]], color="tab:red", linewidth=0.5, alpha=0.6)
+    ax.scatter(p[:, 0], p[:, 1], facecolors="none", edgecolors="tab:blue", s=40, label="p")
+    ax.scatter(h_hat[:, 0], h_hat[:, 1], color="tab:red", s=6, label="ĥ (affine fit of p on h)")
+    ax.set_aspect("equal")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(f"position space   D_metric = {last['d_metric']:.3f}")
+    ax = fig.add_subplot(1, 4, 4, projection="3d")
+    folder = run.run.path / EMBEDDINGS
+    true = np.load(folder / "s_t1_true-0000000.npy", allow_pickle=False)
+    pred = np.load(folder / f"s_t1_pred-{step:07d}.npy", allow_pickle=False)
+    ax.scatter(*true[:, :3].T, facecolors="none", edgecolors="tab:green", s=40, label="true")
+    ax.scatter(*pred[:, :3].T, color="m", s=10, label="predicted")
+    ax.legend(fontsize=8)
+    ax.set_title(f"sensory space s_t1 (first 3 dims)   loss = {last['eval_loss']:.3g}")
+    fig.suptitle(f"{run.name} at step {step}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def final_table(groups: dict[str, list[RunData]]) -> list[dict[str, Any]]:
+    table = []
+    for mode, runs in groups.items():
+        row: dict[str, Any] = {"mode": mode, "runs": len(runs), "step": int(min(r.rows[-1]["step"] for r in runs))}
+        for key, _ in METRICS:
+            values = np.array([r.rows[-1][key] for r in runs])
+            row[f"{key}_mean"], row[f"{key}_std"] = float(values.mean()), float(values.std())
+        table.append(row)
+    return table
+
+
+def write_tables(runs: list[RunData], table: list[dict[str, Any]], out: Path) -> None:
+    with open(out / "final.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(table[0]))
+        writer.writeheader()
+        writer.writerows(table)
+    with open(out / "runs.csv", "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["run", "mode", "step", "eval_loss", "d_topo", "d_metric"])
+        for r in runs:
+            last = r.rows[-1]
+            writer.writerow([r.name, r.mode, last["step"], last["eval_loss"], last["d_topo"], last["d_metric"]])
+    lines = ["| mode | runs | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|"]
+    for row in table:
+        cells = [f"{row[f'{k}_mean']:.3g} ± {row[f'{k}_std']:.2g}" for k, _ in METRICS]
+        lines.append(f"| {row['mode']} | {row['runs']} | {row['step']} | " + " | ".join(cells) + " |")
+    (out / "final.md").write_text("\n".join(lines) + "\n")
+
+
+def report(paths: list[Path], out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    runs = load_runs(paths)
+    groups = by_mode(runs)
+    out.mkdir(parents=True, exist_ok=True)
+    curves_figure(groups, out / "curves.png")
+    written = [out / "curves.png"]
+    for mode, group in groups.items():
+        path = out / f"projection_{mode}.png"
+        projection_figure(group[0], path)
+        written.append(path)
+    write_tables(runs, final_table(groups), out)
+    return [*written, out / "final.csv", out / "final.md", out / "runs.csv"]
