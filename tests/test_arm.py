@@ -14,6 +14,8 @@ from datagen.setups.arm import ArmWorld, planar_fk
 
 from .conftest import BIN, smgen
 
+ARM_LAKE_ARGS = ("generate", "--setup", "arm", "--mode", "all", "--transitions", 1200, "--shard-size", 500, "--seed", 2)
+
 
 @pytest.fixture(scope="module")
 def world() -> ArmWorld:
@@ -23,21 +25,7 @@ def world() -> ArmWorld:
 @pytest.fixture(scope="module")
 def arm_lake(tmp_path_factory):
     lake = tmp_path_factory.mktemp("arm_lake")
-    result = smgen(
-        "generate",
-        "--setup",
-        "arm",
-        "--mode",
-        "all",
-        "--transitions",
-        1200,
-        "--shard-size",
-        500,
-        "--seed",
-        2,
-        "--lake",
-        lake,
-    )
+    result = smgen(*ARM_LAKE_ARGS, "--lake", lake)
     assert result.exit_code == 0, result.output
     return lake
 
@@ -125,23 +113,7 @@ def test_modes_validate_and_camera_stays_inside_the_walls(arm_lake):
 
 
 def test_same_bytes_with_one_and_two_workers(arm_lake, tmp_path):
-    args = [
-        "generate",
-        "--setup",
-        "arm",
-        "--mode",
-        "all",
-        "--transitions",
-        1200,
-        "--shard-size",
-        500,
-        "--seed",
-        2,
-        "--lake",
-        tmp_path,
-        "--workers",
-        2,
-    ]
+    args = [*ARM_LAKE_ARGS, "--lake", tmp_path, "--workers", 2]
     proc = subprocess.run([str(BIN / "smgen"), *map(str, args)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     for mode in ("MEM", "MM", "MME"):

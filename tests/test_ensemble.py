@@ -47,15 +47,33 @@ def test_a_run_inside_an_ensemble_is_the_run_trained_alone(tmp_path):
         for name, tensor in ca["model"].items():
             torch.testing.assert_close(cb["model"][name], tensor, rtol=1e-3, atol=1e-4)
         for key in ("exp_avg", "exp_avg_sq"):  # the Adam state is the lone run's, slice by slice
-            torch.testing.assert_close(cb["optimizer"]["state"][0][key], ca["optimizer"]["state"][0][key],
-                                       rtol=1e-2, atol=1e-6)
+            torch.testing.assert_close(
+                cb["optimizer"]["state"][0][key], ca["optimizer"]["state"][0][key], rtol=1e-2, atol=1e-6
+            )
         assert ca["stream"] == cb["stream"]
 
 
 def test_sweep_generates_trains_resumes_and_reports(tmp_path):
     lake, out = tmp_path / "lake", tmp_path / "runs"
-    args = ["sweep", "--setup", "grid", "--worlds", 2, "--seed", 5, "--transitions", 2500, "--steps", 40,
-            "--eval-every", 20, "--lake", lake, "--out", out]
+    args = [
+        "sweep",
+        "--setup",
+        "grid",
+        "--worlds",
+        2,
+        "--seed",
+        5,
+        "--transitions",
+        2500,
+        "--steps",
+        40,
+        "--eval-every",
+        20,
+        "--lake",
+        lake,
+        "--out",
+        out,
+    ]
     result = smtrain(*args)
     assert result.exit_code == 0, result.output
     folders = sorted(out.iterdir())
@@ -80,8 +98,15 @@ def test_sweep_generates_trains_resumes_and_reports(tmp_path):
     report = tmp_path / "report"
     result = smtrain("report", *folders, "--out", report)
     assert result.exit_code == 0, result.output
-    for name in ("curves.png", "projection_MEM.png", "projection_MM.png", "projection_MME.png", "final.csv",
-                 "final.md", "runs.csv"):
+    for name in (
+        "curves.png",
+        "projection_MEM.png",
+        "projection_MM.png",
+        "projection_MME.png",
+        "final.csv",
+        "final.md",
+        "runs.csv",
+    ):
         assert (report / name).stat().st_size > 100, name
     with open(report / "final.csv") as fh:
         rows = list(csv.DictReader(fh))

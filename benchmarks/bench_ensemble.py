@@ -1,0 +1,94 @@
+"""Ensemble training speed on one CPU core: FLOPs per step, achieved FLOP/s against the machine's
+measured matmul FLOP/s, and the speed-up over training the same runs one after another.
+
+Prints one JSON object. The model step is timed on fixed random batches (the loaders cost ~50 µs
+per run-step and are reported separately by bench_train.py).
+Usage: python benchmarks/bench_ensemble.py [--runs 50] [--setup-sensors 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import torch
+from bench_train import matmul_flops, step_flops
+
+from train.config import TrainConfig
+from train.ensemble import EnsembleNet
+from train.fit import build
+from train.model import prediction_loss
+
+
+def seconds_per_step(step, repeats: int, n: int) -> float:
+    for _ in range(3):
+        step()
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        for _ in range(n):
+            step()
+        best = min(best, (time.perf_counter() - t) / n)
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--runs", type=int, default=50)
+    ap.add_argument("--sensors", type=int, default=4, help="4: grid, 768: arm")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    peak = matmul_flops()
+    r, ns, b = args.runs, args.sensors, 100
+
+    single, opt1 = build(TrainConfig(dataset="bench"), 3, ns, torch.device("cpu"))
+    x1 = [torch.rand(b, k) * 2 - 1 for k in (3, ns, 3, ns)]
+
+    def single_step() -> None:
+        loss = prediction_loss(single(x1[0], x1[1], x1[2]), x1[3])
+        opt1.zero_grad(set_to_none=True)
+        loss.backward()
+        opt1.step()
+
+    net = EnsembleNet(r, 3, ns, 3, [150, 100, 50], [200, 150, 100])
+    for i in range(r):
+        net.load_run(i, single.state_dict())
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3, fused=True)
+    xs = [torch.rand(r, b, k) * 2 - 1 for k in (3, ns, 3, ns)]
+
+    def ensemble_step() -> None:
+        loss = (net(xs[0], xs[1], xs[2]) - xs[3]).pow(2).sum(2).mean(1).sum()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    t_single = seconds_per_step(single_step, args.repeats, 300)
+    t_ensemble = seconds_per_step(ensemble_step, args.repeats, max(5, 3000 // r))
+    flops = step_flops(single, b)
+    print(
+        json.dumps(
+            {
+                "benchmark": "ensemble",
+                "runs": r,
+                "n_sensor": ns,
+                "threads": 1,
+                "matmul_gflops_1core": round(peak / 1e9, 1),
+                "mflop_per_run_step": round(flops / 1e6, 1),
+                "single_ms_per_step": round(t_single * 1e3, 3),
+                "single_fraction_of_peak": round(flops / t_single / peak, 3),
+                "ensemble_ms_per_step": round(t_ensemble * 1e3, 2),
+                "ensemble_ms_per_run_step": round(t_ensemble * 1e3 / r, 3),
+                "ensemble_gflops": round(r * flops / t_ensemble / 1e9, 1),
+                "ensemble_fraction_of_peak": round(r * flops / t_ensemble / peak, 3),
+                "speedup_vs_sequential": round(r * t_single / t_ensemble, 2),
+                "ms_per_run_step_at_peak": round(flops / peak * 1e3, 3),
+                "projected_hours_300_runs_100k_steps": round(300 * 100_000 * t_ensemble / r / 3600, 2),
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
