@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The main job end to end on small defaults: generate one grid world in its three modes, validate
-# the datasets, train a short run on each and print the final loss, D_topo and D_metric.
+# the datasets, train a short run on each, print the final loss, D_topo and D_metric, draw the
+# paper's figures and write rerun recordings of the data and of what was learned.
 # Usage: bash scripts/demo.sh [LAKE] [RUNS]   (defaults data/lake and runs)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,4 +15,9 @@ for mode in MEM MM MME; do
   $BIN/smtrain fit "grid-seed0-$mode" --lake "$LAKE" --steps 3000 --out "$RUNS/demo-grid-seed0-$mode" --overwrite
 done
 $BIN/smtrain ls --runs "$RUNS"
+$BIN/smtrain report "$RUNS"/demo-grid-seed0-MEM "$RUNS"/demo-grid-seed0-MM "$RUNS"/demo-grid-seed0-MME --out "$RUNS/demo-report"
+$BIN/smgen view grid-seed0-MME --lake "$LAKE" --save "$RUNS/demo-dataset.rrd"
+$BIN/smtrain view "$RUNS/demo-grid-seed0-MME" --save "$RUNS/demo-run.rrd"
+cat "$RUNS/demo-report/final.md"
+echo "Figures: $RUNS/demo-report/*.png; recordings: rerun $RUNS/demo-dataset.rrd $RUNS/demo-run.rrd"
 echo "Expected shape (SPEC 4): loss MEM high, MM/MME low; D_topo MEM high; D_metric MEM > MM > MME."
