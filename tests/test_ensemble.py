@@ -120,3 +120,35 @@ def test_report_needs_evaluated_runs(tmp_path):
     RunDir.create(tmp_path / "empty", config("MM", 1), False)
     result = smtrain("report", tmp_path / "empty", "--out", tmp_path / "r")
     assert result.exit_code == 2 and "no evaluations" in result.output
+
+
+@pytest.mark.parametrize("setup", ["grid6", "arm6"])
+def test_six_motor_setups_and_nh25_run_through_the_same_commands(tmp_path, setup):
+    result = smtrain(
+        "sweep",
+        "--setup",
+        setup,
+        "--modes",
+        "MME",
+        "--worlds",
+        1,
+        "--transitions",
+        1500,
+        "--steps",
+        10,
+        "--eval-every",
+        10,
+        "--nh",
+        25,
+        "--lake",
+        tmp_path / "lake",
+        "--out",
+        tmp_path / "runs",
+    )
+    assert result.exit_code == 0, result.output
+    run = RunDir.open(tmp_path / "runs" / f"{setup}-seed0-MME-nh25-seed0")
+    h, p = run.embeddings(10)
+    assert h.shape == (15625, 25) and p.shape == (15625, 2)
+    state = torch.load(run.path / "checkpoint.pt", weights_only=True)["model"]
+    assert state["encoder.0.weight"].shape == (500, 6)  # the paper's larger encoder for six motors
+    assert np.isfinite(run.metrics()[-1]["d_metric"])
