@@ -129,7 +129,10 @@ def plan_dataset(lake: Path, cfg: GenConfig, overwrite: bool) -> Plan:
             )
         _clear_dataset(folder)
     elif recorded is not None and (folder / MANIFEST).exists():
-        return Plan(cfg, folder, [], complete=True)
+        if _files_as_recorded(folder):
+            return Plan(cfg, folder, [], complete=True)
+        # a shard went missing or changed size: the dataset is incomplete again until repaired
+        (folder / MANIFEST).unlink()
     try:
         folder.mkdir(parents=True, exist_ok=True)
         remove_partials(folder)
@@ -138,6 +141,13 @@ def plan_dataset(lake: Path, cfg: GenConfig, overwrite: bool) -> Plan:
     write_atomic(folder / GENERATION, json.dumps({"config": cfg.to_dict(), "config_hash": cfg.config_hash}).encode())
     todo = [i for i in range(cfg.n_shards) if not _shard_is_good(folder / shard_name(i), cfg)]
     return Plan(cfg, folder, todo, complete=False)
+
+
+def _files_as_recorded(folder: Path) -> bool:
+    """Cheap completeness check of a finished dataset: every file present with its recorded size."""
+    manifest = load_manifest(folder)
+    files = [*manifest.shards, manifest.regular_sampling]
+    return all((folder / f["file"]).exists() and (folder / f["file"]).stat().st_size == f["bytes"] for f in files)
 
 
 def _merge_stats(stats: list[dict[str, list[float]]]) -> dict[str, list[float]]:
