@@ -1,7 +1,7 @@
 """Logging a dataset to an .rrd with `smgen view --save` (column-wise send_columns).
 
 Prints one JSON object: seconds to read + log N transitions, the .rrd size. Generation of the
-dataset is not timed. Usage: python benchmarks/bench_view.py [--setup grid] [--transitions 150000]
+dataset is not timed. Usage: python benchmarks/bench_view.py [--setup grid] [--transitions 150000] [--dataset FOLDER]
 """
 
 from __future__ import annotations
@@ -23,11 +23,15 @@ def main() -> None:
     ap.add_argument("--setup", default="grid")
     ap.add_argument("--transitions", type=int, default=150_000)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--dataset", type=Path, default=None, help="An existing dataset folder (nothing is generated).")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        shard = 32768 if args.setup.startswith("grid") else 8192
-        generate(Path(tmp), args.setup, ["MME"], [0], args.transitions, shard, workers=args.workers)
-        ds = Dataset(Path(tmp) / f"{args.setup}-seed0-MME")
+        if args.dataset is None:
+            shard = 32768 if args.setup.startswith("grid") else 8192
+            generate(Path(tmp), args.setup, ["MME"], [0], args.transitions, shard, workers=args.workers)
+            ds = Dataset(Path(tmp) / f"{args.setup}-seed0-MME")
+        else:
+            ds = Dataset(args.dataset)
         out = Path(tmp) / "view.rrd"
         t0 = time.perf_counter()
         n = view_dataset(ds, None, ViewOutput(save=out))
