@@ -41,7 +41,7 @@ def main() -> None:
         json.dumps(
             {
                 "benchmark": "view",
-                "setup": args.setup,
+                "setup": ds.manifest.setup,
                 "transitions": n,
                 "seconds": round(seconds, 2),
                 "transitions_per_s": round(n / seconds),
