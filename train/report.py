@@ -69,7 +69,9 @@ def curves_figure(groups: dict[str, list[RunData]], path: Path) -> None:
                 ax.plot(steps, v, color=colour, alpha=0.15, linewidth=0.7)
             mean, std = values.mean(0), values.std(0)
             ax.plot(steps, mean, color=colour, linewidth=2, label=f"{mode} (n={len(runs)})")
-            ax.fill_between(steps, mean - std, mean + std, color=colour, alpha=0.3)
+            # on the log panels a band below zero means nothing: floor it at the lowest run
+            lower = np.maximum(mean - std, values.min(0)) if key != "d_metric" else mean - std
+            ax.fill_between(steps, lower, mean + std, color=colour, alpha=0.3)
         ax.set_xlabel("step")
         ax.set_title(label)
         if key != "d_metric":
