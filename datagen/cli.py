@@ -12,6 +12,7 @@ from datagen.cliutil import LAKE_OPTION, friendly_errors
 from datagen.errors import SmspaceError
 from datagen.lake.dataset import default_lake
 from datagen.rerun_output import view_options
+from datagen.setups import SETUPS
 
 
 @click.group(name="smgen", context_settings={"help_option_names": ["-h", "--help"]})
@@ -21,7 +22,9 @@ def main() -> None:
 
 
 @main.command()
-@click.option("--setup", "setup_name", required=True, help="grid, grid6 (arm, arm6 with SAPIEN).")
+@click.option(
+    "--setup", "setup_name", required=True, help="; ".join(f"{s.name}: {s.description}" for s in SETUPS.values())
+)
 @click.option("--mode", required=True, help="MEM, MM, MME, or all.")
 @click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
 @click.option("--worlds", type=click.IntRange(min=1), default=1, help="Number of worlds; seeds SEED, SEED+1, …")

@@ -86,10 +86,6 @@ class Manifest:
     software: dict[str, str] = field(default_factory=software_versions)
 
     @property
-    def gen_config(self) -> GenConfig:
-        return GenConfig(**self.config)
-
-    @property
     def total_bytes(self) -> int:
         return sum(s["bytes"] for s in self.shards) + self.regular_sampling["bytes"]
 
