@@ -10,9 +10,9 @@ BIN=.venv/bin
 
 # grid: 3 modes × 10 worlds (seeds 0-9) × 100000 steps, one vectorised ensemble of 30 runs
 $BIN/smtrain sweep --setup grid --modes MEM,MM,MME --worlds 10 --seed 0 --steps 100000 --lake "$LAKE" --out "$RUNS/grid" &
-# arm: 3 modes × 3 worlds (seeds 0-2), 150000 transitions each, then 50000 steps (see the doc for why)
+# arm: 3 modes × 3 worlds (seeds 0-2), 150000 transitions each, then 100000 steps
 $BIN/smgen generate --setup arm --mode all --worlds 3 --seed 0 --lake "$LAKE" --workers 1
-$BIN/smtrain sweep --setup arm --modes MEM,MM,MME --worlds 3 --seed 0 --steps 50000 --lake "$LAKE" --out "$RUNS/arm"
+$BIN/smtrain sweep --setup arm --modes MEM,MM,MME --worlds 3 --seed 0 --steps 100000 --lake "$LAKE" --out "$RUNS/arm"
 wait
 $BIN/smtrain report "$RUNS"/grid/* --out docs/reproduction/grid
 $BIN/smtrain report "$RUNS"/arm/* --out docs/reproduction/arm
