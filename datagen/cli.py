@@ -135,12 +135,7 @@ def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
     if dataset is not None:
         ds = Dataset.open(dataset, lake)
         setup_name, seed = ds.manifest.setup, ds.manifest.world_seed
-        frames = []
-        for block in ds.blocks():
-            frames.append(block.transitions.s_t)
-            if sum(len(f) for f in frames) >= n_frames:
-                break
-        s_t = np.concatenate(frames)[:n_frames]
+        s_t = ds.read_all(n_frames).s_t
     else:
         get_setup(setup_name).preflight()
         s_t = None

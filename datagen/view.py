@@ -13,17 +13,6 @@ from datagen.setups.base import Transitions
 BLUE, ORANGE, GREY = (40, 110, 230), (240, 140, 20), (150, 150, 150)
 
 
-def read_head(ds: Dataset, limit: int | None) -> Transitions:
-    parts, have = [], 0
-    for block in ds.blocks():
-        parts.append(block.transitions)
-        have += len(block.transitions)
-        if limit is not None and have >= limit:
-            break
-    fields = Transitions.__dataclass_fields__
-    return Transitions(**{f: np.concatenate([getattr(p, f) for p in parts])[:limit] for f in fields})
-
-
 def metadata_markdown(ds: Dataset) -> str:
     m = ds.manifest
     rows = "\n".join(f"| {k} | `{v}` |" for k, v in m.summary().items())
@@ -73,7 +62,7 @@ def _series(rec, path: str, times, values: np.ndarray, names: list[str]) -> None
 def view_dataset(ds: Dataset, limit: int | None, output: ViewOutput) -> int:
     import rerun as rr
 
-    tr = read_head(ds, limit)
+    tr = ds.read_all(limit)
     n = len(tr)
     images = tr.s_t.dtype == np.uint8
     world = None

@@ -24,7 +24,7 @@ from train.config import TrainConfig, learning_rate
 from train.evaluation import N_PREDICTIONS, EvalData, scores_row, write_evaluation
 from train.fit import TrainingFailed, build, resolve_device
 from train.loader import TransitionStream
-from train.model import SensorimotorNet
+from train.model import SensorimotorNet, default_encoder_layers
 from train.run_dir import RunDir
 
 
@@ -161,8 +161,7 @@ def train_ensemble(runs: list[RunDir], resume_step: int = 0, threads: int = 1, p
         raise SmspaceError("runs of one ensemble must have datasets of the same setup")
     n_sensor = int(np.prod(shape))
     count = len(runs)
-    first_run = build(cfg0, n_motor, n_sensor, device)[0]
-    enc = [m.out_features for m in first_run.encoder if isinstance(m, nn.Linear)][:-1]
+    enc = list(cfg0.encoder_layers or default_encoder_layers(n_motor))
     net = EnsembleNet(count, n_motor, n_sensor, cfg0.n_h, enc, list(cfg0.predictor_layers)).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg0.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
     members = []

@@ -31,15 +31,10 @@ class EvalData:
     def load(cls, ds: Dataset, n: int, device: torch.device) -> EvalData:
         m_norm, s_norm = normalisers(ds.manifest)
         m_reg, p_reg = ds.regular_sampling()
-        parts, have = [], 0
-        for block in ds.blocks():
-            parts.append(block.transitions)
-            have += len(block.transitions)
-            if have >= n:
-                break
+        head = ds.read_all(n)
 
         def col(name: str, norm) -> torch.Tensor:
-            return torch.from_numpy(norm(np.concatenate([getattr(t, name) for t in parts])[:n])).to(device)
+            return torch.from_numpy(norm(getattr(head, name))).to(device)
 
         return cls(
             torch.from_numpy(m_norm(m_reg)).to(device),

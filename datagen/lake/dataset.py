@@ -52,13 +52,19 @@ class Dataset:
             with ShardReader(path) as reader:
                 yield from reader.blocks()
 
-    def read_all(self) -> Transitions:
-        """All transitions in index order, as numpy arrays (fits in memory for paper-sized sets)."""
-        parts = [b.transitions for b in self.blocks()]
+    def read_all(self, limit: int | None = None) -> Transitions:
+        """The first `limit` transitions (all by default) in index order, as numpy arrays; only the
+        blocks needed are read (paper-sized sets fit in memory)."""
+        parts, have = [], 0
+        for block in self.blocks():
+            parts.append(block.transitions)
+            have += len(block.transitions)
+            if limit is not None and have >= limit:
+                break
         if not parts:
             raise SmspaceError(f"dataset {self.folder} has no transitions")
         fields = Transitions.__dataclass_fields__
-        return Transitions(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in fields})
+        return Transitions(**{f: np.concatenate([getattr(p, f) for p in parts])[:limit] for f in fields})
 
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
         with ShardReader(self.folder / self.manifest.regular_sampling["file"]) as reader:
