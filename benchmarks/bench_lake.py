@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from datagen.generate import generate
-from datagen.lake.dataset import Dataset
+from lake.dataset import Dataset
 
 
 def best_of(repeats: int, fn) -> float:

@@ -15,7 +15,7 @@ from pathlib import Path
 import torch
 
 from datagen.generate import generate
-from datagen.lake.dataset import Dataset
+from lake.dataset import Dataset
 from train.config import TrainConfig
 from train.fit import build
 from train.loader import TransitionStream

@@ -12,10 +12,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from common.rerun_output import ViewOutput
 from datagen.generate import generate
-from datagen.lake.dataset import Dataset
-from datagen.rerun_output import ViewOutput
 from datagen.view import view_dataset
+from lake.dataset import Dataset
 
 
 def main() -> None:

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import click
 
-from datagen.cliutil import LAKE_OPTION, friendly_errors
-from datagen.errors import SmspaceError
-from datagen.lake.dataset import default_lake
-from datagen.rerun_output import view_options
+from common.cli import LAKE_OPTION, default_workers, friendly_errors
+from common.errors import SmspaceError
+from common.rerun_output import view_options
 from datagen.setups import SETUPS
+from lake.dataset import default_lake
 
 
 @click.group(name="smgen", context_settings={"help_option_names": ["-h", "--help"]})
@@ -30,7 +30,12 @@ def main() -> None:
 @click.option("--worlds", type=click.IntRange(min=1), default=1, help="Number of worlds; seeds SEED, SEED+1, …")
 @click.option("--seed", type=click.IntRange(min=0), default=0, help="Seed of the first world.")
 @LAKE_OPTION
-@click.option("--workers", type=click.IntRange(min=1), default=1, help="Worker processes (bytes do not depend on it).")
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Worker processes [default: this machine's cores; bytes do not depend on it].",
+)
 @click.option("--shard-size", type=int, default=None, help="Transitions per shard [grid 32768, arm 8192].")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
 @friendly_errors
@@ -44,6 +49,7 @@ def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_s
     n = setup.default_transitions if transitions is None else transitions
     shard_size = setup.default_shard_size if shard_size is None else shard_size
     lake = lake or default_lake()
+    workers = workers or default_workers()
     results = run(lake, setup.name, modes, range(seed, seed + worlds), n, shard_size, workers, overwrite)
     for manifest, written in results:
         click.echo(f"{manifest.dataset_id}\t{lake / manifest.dataset_id}\t{'written' if written else 'exists'}")
@@ -55,7 +61,7 @@ def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_s
 @friendly_errors
 def ls_(lake, as_json) -> None:
     """List the datasets of a lake (from its catalog)."""
-    from datagen.lake.catalog import read_catalog
+    from lake.catalog import read_catalog
 
     lake = lake or default_lake()
     if lake.exists() and not lake.is_dir():
@@ -80,7 +86,7 @@ def ls_(lake, as_json) -> None:
 @friendly_errors
 def info(dataset, lake, as_json) -> None:
     """Describe one dataset (a folder or an id in the lake)."""
-    from datagen.lake.dataset import Dataset
+    from lake.dataset import Dataset
 
     ds = Dataset.open(dataset, lake)
     summary = ds.manifest.summary() | {"path": str(ds.folder)}
@@ -97,8 +103,8 @@ def info(dataset, lake, as_json) -> None:
 @friendly_errors
 def validate(datasets, lake) -> None:
     """Check CRCs, counts, sha256, schema, values and the mode invariant; exit 1 on any problem."""
-    from datagen.lake.dataset import resolve_dataset
-    from datagen.lake.validate import validate_dataset
+    from lake.dataset import resolve_dataset
+    from lake.validate import validate_dataset
 
     bad = False
     for ref in datasets:
@@ -123,28 +129,16 @@ def validate(datasets, lake) -> None:
 @friendly_errors
 def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
     """Write PNGs of a world: the room from above (arm) or the sensory table (grid), and sensor frames."""
-    import numpy as np
-
-    from datagen.generate import world_for
-    from datagen.lake.dataset import Dataset
-    from datagen.preview import write_previews
-    from datagen.setups import get_setup
+    from datagen.preview import preview_dataset, preview_world
+    from lake.dataset import Dataset
 
     if (dataset is None) == (setup_name is None):
         raise SmspaceError("give either DATASET or --setup (with --seed)")
     if dataset is not None:
-        ds = Dataset.open(dataset, lake)
-        setup_name, seed = ds.manifest.setup, ds.manifest.world_seed
-        s_t = ds.read_all(n_frames).s_t
+        written = preview_dataset(Dataset.open(dataset, lake), out, n_frames)
     else:
-        get_setup(setup_name).preflight()
-        s_t = None
-    world = world_for(get_setup(setup_name).name, seed)
-    if s_t is None and world.sensor_dtype == np.uint8:
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2,)))
-        _, p = world.sample_motors(rng, n_frames)
-        s_t = world.sense(p, np.zeros_like(p))
-    for path in write_previews(out, world, s_t):
+        written = preview_world(setup_name, seed, out, n_frames)
+    for path in written:
         click.echo(str(path))
 
 
@@ -156,8 +150,8 @@ def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
 @friendly_errors
 def view(dataset, lake, limit, output) -> None:
     """Replay a dataset in rerun: frames, motors, egocentric positions, shift, room map, metadata."""
-    from datagen.lake.dataset import Dataset
     from datagen.view import view_dataset
+    from lake.dataset import Dataset
 
     ds = Dataset.open(dataset, lake)
     n = view_dataset(ds, limit, output)
@@ -175,7 +169,7 @@ def view(dataset, lake, limit, output) -> None:
 def export(dataset, lake, fmt, out, limit) -> None:
     """Export a dataset: per-transition MCAP with Foxglove schemas, or Parquet."""
     from datagen.export import export as run
-    from datagen.lake.dataset import Dataset
+    from lake.dataset import Dataset
 
     n = run(Dataset.open(dataset, lake), fmt, out, limit)
     click.echo(f"{out}\t{n} transitions")

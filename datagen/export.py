@@ -18,10 +18,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from datagen.errors import SmspaceError
-from datagen.lake.atomic import atomic_writer
-from datagen.lake.dataset import Dataset
-from datagen.setups.base import Transitions
+from common.errors import SmspaceError
+from lake.atomic import atomic_writer
+from lake.dataset import Dataset
+from lake.transitions import Transitions
 
 EPOCH_NS = 1_575_763_200 * 10**9  # 2019-12-08T00:00:00Z, NeurIPS 2019
 STEP_NS = 10**6
@@ -33,7 +33,7 @@ def _blocks(ds: Dataset, limit: int | None) -> Iterator[tuple[int, Transitions]]
     for block in ds.blocks():
         tr = block.transitions
         if limit is not None and done + len(tr) > limit:
-            tr = Transitions(**{f: getattr(tr, f)[: limit - done] for f in Transitions.__dataclass_fields__})
+            tr = tr[: limit - done]
         if len(tr):
             yield block.first_index, tr
         done += len(tr)

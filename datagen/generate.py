@@ -20,10 +20,11 @@ import numpy as np
 from tqdm import tqdm
 
 import schemas
-from datagen.errors import SmspaceError
-from datagen.lake.atomic import remove_partials, sha256_file, write_atomic
-from datagen.lake.catalog import check_lake, rebuild_catalog
-from datagen.lake.manifest import (
+from common.errors import SmspaceError
+from datagen.setups import MODES, World, draw_transitions, get_setup
+from lake.atomic import remove_partials, sha256_file, write_atomic
+from lake.catalog import check_lake, rebuild_catalog
+from lake.manifest import (
     GENERATION,
     MANIFEST,
     REGULAR_FILE,
@@ -32,8 +33,7 @@ from datagen.lake.manifest import (
     load_manifest,
     shard_name,
 )
-from datagen.lake.shards import Block, ShardReader, write_regular_sampling, write_shard
-from datagen.setups import MODES, World, draw_transitions, get_setup
+from lake.shards import Block, ShardReader, write_regular_sampling, write_shard
 
 _WORLDS: dict[tuple[str, int], World] = {}
 
@@ -198,6 +198,7 @@ def finalize_dataset(plan: Plan) -> Manifest:
             "bytes": reg.stat().st_size,
             "sha256": sha256_file(reg),
         },
+        shift_bound=get_setup(cfg.setup).shift_bound,
     )
     manifest.write(folder)
     (folder / GENERATION).unlink(missing_ok=True)

@@ -5,15 +5,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, ImageDraw
 
-from datagen.setups.arm import SHIFT_BOUND, ArmWorld, overhead_pixel, overhead_view
+from datagen.generate import world_for
+from datagen.setups import get_setup
+from lake.dataset import Dataset
 
-WORKSPACE_RADIUS = 1.5
+FRAMES_SEED_KEY = 2  # spawn key of the random positions shown when previewing a world without a dataset
 
 
-def frame_grid(frames: np.ndarray, columns: int = 8, scale: int = 8, gap: int = 4) -> Image.Image:
+def frame_grid(frames: np.ndarray, columns: int = 8, scale: int = 8, gap: int = 4):
     """Sensor frames (n, H, W, 3) uint8 tiled row by row, upscaled without smoothing."""
+    from PIL import Image
+
     n, h, w, _ = frames.shape
     rows = -(-n // columns)
     canvas = np.full((rows * (h * scale + gap) + gap, columns * (w * scale + gap) + gap, 3), 255, np.uint8)
@@ -24,53 +27,31 @@ def frame_grid(frames: np.ndarray, columns: int = 8, scale: int = 8, gap: int = 
     return Image.fromarray(canvas)
 
 
-def room_map(world: ArmWorld, size: int = 512) -> Image.Image:
-    """The room from above with the arm's working space and where shifts can put the camera."""
-    world.positions(np.array([[0.25, -0.5, 0.25] + [0.0] * (world.n_motor - 3)]))  # pose the arm visibly
-    image = Image.fromarray(overhead_view(world, size))
-    draw = ImageDraw.Draw(image)
-
-    def px(x: float, y: float) -> tuple[float, float]:
-        return overhead_pixel(x, y, size)
-
-    r = px(WORKSPACE_RADIUS, 0)[1] - px(0, 0)[1]
-    c0 = px(0, 0)
-    draw.ellipse([c0[0] + r, c0[1] + r, c0[0] - r, c0[1] - r], outline=(255, 255, 255), width=2)
-    a, b = px(SHIFT_BOUND, SHIFT_BOUND), px(-SHIFT_BOUND, -SHIFT_BOUND)
-    draw.rectangle([a[0], a[1], b[0], b[1]], outline=(255, 220, 0), width=2)
-    reach = SHIFT_BOUND + WORKSPACE_RADIUS
-    a, b = px(reach, reach), px(-reach, -reach)
-    draw.rounded_rectangle([a[0], a[1], b[0], b[1]], radius=abs(r), outline=(255, 120, 0), width=2)
-    draw.text((6, 6), "white: arm working space (|p| <= 1.5)", fill=(255, 255, 255))
-    draw.text((6, 18), "yellow: shift range (+-1.75)   orange: camera reach", fill=(255, 220, 0))
-    draw.text((6, size - 16), "+x up, +y left", fill=(255, 255, 255))
-    return image
-
-
-def sensory_table_image(table: np.ndarray, scale: int = 24) -> Image.Image:
-    """The grid world's S[r, c, i] as one grey panel per component (black = min, white = max)."""
-    panels = []
-    for i in range(table.shape[2]):
-        t = table[:, :, i]
-        g = np.round(255 * (t - t.min()) / max(t.max() - t.min(), 1e-12)).astype(np.uint8)
-        panel = np.pad(g.repeat(scale, 0).repeat(scale, 1), 4, constant_values=255)
-        panels.append(np.repeat(panel[..., None], 3, axis=2))
-    return Image.fromarray(np.concatenate(panels, axis=1))
-
-
-def write_previews(out: Path, world, frames: np.ndarray | None) -> list[Path]:
+def _write(out: Path, setup_name: str, seed: int, frames: np.ndarray | None) -> list[Path]:
+    setup = get_setup(setup_name)
+    world = world_for(setup.name, seed)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
-    if isinstance(world, ArmWorld):
-        path = out / "room.png"
-        room_map(world).save(path)
-        written.append(path)
-    else:
-        path = out / "sensory_table.png"
-        sensory_table_image(world.table).save(path)
-        written.append(path)
-    if frames is not None and frames.ndim == 4:
+    written = setup.preview(world, out) if setup.preview else []
+    if frames is not None and frames.ndim == 4:  # images; a grid's few components say nothing as pictures
         path = out / "frames.png"
         frame_grid(frames).save(path)
         written.append(path)
     return written
+
+
+def preview_dataset(ds: Dataset, out: Path, n_frames: int) -> list[Path]:
+    """The dataset's world and its first sensor frames, as stored."""
+    return _write(out, ds.manifest.setup, ds.manifest.world_seed, ds.read_all(n_frames).s_t)
+
+
+def preview_world(setup_name: str, seed: int, out: Path, n_frames: int) -> list[Path]:
+    """A world without a dataset: frames seen from random positions of the arm, the room unshifted."""
+    setup = get_setup(setup_name)
+    setup.preflight()
+    world = world_for(setup.name, seed)
+    frames = None
+    if world.sensor_dtype == np.uint8:
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(FRAMES_SEED_KEY,)))
+        _, p = world.sample_motors(rng, n_frames)
+        frames = world.sense(p, np.zeros_like(p))
+    return _write(out, setup.name, seed, frames)

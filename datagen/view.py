@@ -6,11 +6,12 @@ import json
 
 import numpy as np
 
-from datagen.lake.dataset import Dataset
-from datagen.rerun_output import ViewOutput, recording
-from datagen.setups.base import Transitions
+from common.rerun_output import ViewOutput, recording
+from datagen.generate import world_for
+from datagen.setups import get_setup
+from lake.dataset import Dataset
 
-BLUE, ORANGE, GREY = (40, 110, 230), (240, 140, 20), (150, 150, 150)
+BLUE, ORANGE, GREY = (40, 110, 230), (240, 140, 20), (150, 150, 150)  # t, t+1, reachable
 
 
 def metadata_markdown(ds: Dataset) -> str:
@@ -65,12 +66,8 @@ def view_dataset(ds: Dataset, limit: int | None, output: ViewOutput) -> int:
     tr = ds.read_all(limit)
     n = len(tr)
     images = tr.s_t.dtype == np.uint8
-    world = None
-    if ds.manifest.setup.startswith("arm"):
-        from datagen.generate import world_for
-
-        world = world_for(ds.manifest.setup, ds.manifest.world_seed)
-    with recording("smspace", ds.manifest.dataset_id, blueprint(images, world is not None), output) as rec:
+    setup = get_setup(ds.manifest.setup)
+    with recording("smspace", ds.manifest.dataset_id, blueprint(images, setup.view_world is not None), output) as rec:
         times = [rr.TimeColumn("transition", sequence=np.arange(n))]
         rec.log("dataset", rr.TextDocument(metadata_markdown(ds), media_type=rr.MediaType.MARKDOWN), static=True)
         for name in ("s_t", "s_t1"):
@@ -95,24 +92,6 @@ def view_dataset(ds: Dataset, limit: int | None, output: ViewOutput) -> int:
                 indexes=times,
                 columns=rr.Points2D.columns(positions=getattr(tr, name), colors=[colour] * n, radii=[0.06] * n),
             )
-        if world is not None:
-            _log_room_map(rec, world, tr, times)
+        if setup.view_world is not None:
+            setup.view_world(rec, world_for(setup.name, ds.manifest.world_seed), tr, times)
     return n
-
-
-def _log_room_map(rec, world, tr: Transitions, times) -> None:
-    import rerun as rr
-
-    from datagen.preview import room_map
-    from datagen.setups.arm import overhead_pixel
-
-    rec.log("map/room", rr.Image(np.asarray(room_map(world))), static=True)
-    n = len(tr)
-    for name, p, shift, colour in (("camera_t", tr.p_t, tr.shift_t, BLUE), ("camera_t1", tr.p_t1, tr.shift_t1, ORANGE)):
-        xy = (p + shift).astype(np.float64)
-        px = np.stack(overhead_pixel(xy[:, 0], xy[:, 1]), axis=1)
-        rec.send_columns(
-            f"map/{name}",
-            indexes=times,
-            columns=rr.Points2D.columns(positions=px, colors=[colour] * n, radii=[5.0] * n),
-        )

@@ -1,4 +1,4 @@
-"""How much of the structure of space a motor representation captured (SPEC 4)."""
+"""How much of the structure of space a motor representation captured (docs/MODEL.md §4)."""
 
 from metrics.spatial import SpatialScores, affine_projection, d_metric, d_topo, spatial_scores
 

@@ -1,4 +1,4 @@
-"""D_topo and D_metric (SPEC 4), over unordered pairs i < j, computed in bounded memory.
+"""D_topo and D_metric (docs/MODEL.md §4), over unordered pairs i < j, computed in bounded memory.
 
 N reaches 15625 (1.2e8 pairs): the pair terms are never materialised. Rows are taken in blocks
 against the columns from the block start on; inside the leading square of each block both

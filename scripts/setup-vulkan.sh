@@ -2,7 +2,7 @@
 # A Vulkan device SAPIEN 3 accepts on a machine without a GPU: Mesa 25 lavapipe from Debian's
 # bookworm-backports, unpacked into .vk/ (project-owned; nothing system-wide changes beyond the
 # base packages). Debian 12's own Mesa 22 lavapipe lacks descriptorBindingPartiallyBound and SAPIEN
-# rejects it with a bare "failed to find a rendering device". Recipe: research/sapien-probe.md.
+# rejects it with a bare "failed to find a rendering device". The lavapipe package is unpacked, not installed, so the system Mesa stays as it is.
 # Writes .vk/env.sh, which smspace reads to find the driver. Idempotent.
 # Usage: bash scripts/setup-vulkan.sh      (as root, or with sudo available)
 set -euo pipefail

@@ -1,4 +1,4 @@
-"""The SAPIEN arm in a room (SPEC 2.3, 2.4): kinematics, camera, invisibility of the arm, rendering."""
+"""The SAPIEN arm in a room (docs/MODEL.md §2.3, §2.4): kinematics, camera, invisibility of the arm, rendering."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from datagen.lake.dataset import Dataset
 from datagen.setups.arm import ArmWorld, planar_fk
+from lake.dataset import Dataset
 
 from .conftest import BIN, smgen
 
@@ -38,7 +38,7 @@ def test_sapien_positions_equal_planar_forward_kinematics(world):
     m_reg, p_reg = world.regular_sampling()
     assert m_reg.shape == (216, 3)
     np.testing.assert_allclose(p_reg, planar_fk(m_reg), atol=5e-6)
-    assert len(np.unique(np.round(p_reg, 4), axis=0)) == 55  # SPEC 2.3: 55 distinct positions
+    assert len(np.unique(np.round(p_reg, 4), axis=0)) == 55  # docs/MODEL.md §2.3: 55 distinct positions
 
 
 def test_six_motor_arm_kinematics():

@@ -11,8 +11,8 @@ from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 import schemas
-from datagen.errors import SmspaceError
-from datagen.lake.dataset import Dataset
+from common.errors import SmspaceError
+from lake.dataset import Dataset
 
 from .conftest import smgen
 
@@ -138,7 +138,7 @@ def test_manifest_of_another_schema_version(lake_copy):
 
 def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):
     """ENOSPC mid-write: a clear error naming the file, and no half-written shard."""
-    import datagen.lake.shards as shards
+    import lake.shards as shards
 
     real = shards.encode_batch
     calls = {"n": 0}

@@ -1,4 +1,4 @@
-"""The discrete worlds against SPEC 2.1 and 2.2."""
+"""The discrete worlds against docs/MODEL.md §2.1 and 2.2."""
 
 from __future__ import annotations
 

@@ -14,10 +14,10 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from datagen.generate import shard_rng, world_for
-from datagen.lake.dataset import Dataset
-from datagen.lake.manifest import GenConfig
-from datagen.lake.shards import ShardReader
 from datagen.setups import draw_transitions
+from lake.dataset import Dataset
+from lake.manifest import GenConfig
+from lake.shards import ShardReader
 
 from .conftest import BIN, smgen
 

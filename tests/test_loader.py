@@ -6,8 +6,9 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from datagen.lake.dataset import Dataset
-from train.loader import TransitionStream, normalisers
+from lake.dataset import Dataset
+from lake.normalise import normalisers
+from train.loader import TransitionStream
 
 from .conftest import SAMPLES
 

@@ -11,7 +11,7 @@ from metrics import affine_projection, spatial_scores
 
 
 def brute_force(h: np.ndarray, p: np.ndarray, alpha: float = 50.0) -> tuple[float, float]:
-    """SPEC 4 written literally: every pair i < j, distances in float64."""
+    """docs/MODEL.md §4 written literally: every pair i < j, distances in float64."""
     n = len(h)
     i, j = np.triu_indices(n, k=1)
     dh = np.linalg.norm(h[i] - h[j], axis=1)
@@ -60,7 +60,7 @@ def test_random_h_is_far_from_zero():
     h = np.random.default_rng(0).normal(size=(len(p), 3))
     scores = spatial_scores(h, p)
     assert scores.d_metric > 0.2 and scores.d_topo > 5e-3
-    # and h = p is near-perfect topology (reference value ~3.4e-6, research/original-code.md §5)
+    # and h = p is near-perfect topology (reference value ~3.4e-6, docs/MODEL.md §4)
     assert spatial_scores(np.c_[p, np.zeros(len(p))], p).d_topo < 1e-5
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from datagen.lake.dataset import Dataset
+from lake.dataset import Dataset
 
 from .conftest import BIN
 

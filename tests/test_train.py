@@ -69,10 +69,13 @@ def test_short_run_learns_and_writes_a_complete_run_folder(tmp_path):
 
 
 def test_model_defaults_are_the_paper_s(tmp_path):
-    from train.config import TrainConfig
+    from train.config import TrainConfig, default_encoder_layers
     from train.fit import build
 
-    model, opt = build(TrainConfig(dataset="x"), 3, 4, torch.device("cpu"))
+    def paper(setup: str) -> TrainConfig:
+        return TrainConfig(dataset="x", encoder_layers=list(default_encoder_layers(setup)))
+
+    model, opt = build(paper("grid"), 3, 4, torch.device("cpu"))
     sizes = [m.out_features for m in model.encoder if isinstance(m, torch.nn.Linear)]
     assert sizes == [150, 100, 50, 3]
     sizes = [m.out_features for m in model.predictor if isinstance(m, torch.nn.Linear)]
@@ -81,7 +84,7 @@ def test_model_defaults_are_the_paper_s(tmp_path):
     w = model.encoder[2].weight  # Glorot-uniform bound sqrt(6 / (fan_in + fan_out))
     bound = float(w.detach().abs().max())
     assert 0.9 * math.sqrt(6 / 250) < bound <= math.sqrt(6 / 250)
-    six, _ = build(TrainConfig(dataset="x"), 6, 4, torch.device("cpu"))
+    six, _ = build(paper("grid6"), 6, 4, torch.device("cpu"))
     assert [m.out_features for m in six.encoder if isinstance(m, torch.nn.Linear)] == [500, 400, 300, 200, 3]
     assert opt.defaults["betas"] == (0.9, 0.999) and opt.defaults["eps"] == 1e-8
 

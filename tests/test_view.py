@@ -16,7 +16,7 @@ import psutil
 import pytest
 
 from datagen.export import read_parquet_transitions
-from datagen.lake.dataset import Dataset
+from lake.dataset import Dataset
 
 from .conftest import BIN, SAMPLES, smgen
 

@@ -5,13 +5,19 @@ from __future__ import annotations
 import json
 import math
 import sys
+from collections.abc import Callable
+from dataclasses import MISSING, Field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
-from datagen.cliutil import LAKE_OPTION, friendly_errors
-from datagen.errors import SmspaceError
-from datagen.rerun_output import view_options
+from common.cli import LAKE_OPTION, friendly_errors
+from common.errors import SmspaceError
+from common.rerun_output import view_options
+
+if TYPE_CHECKING:
+    from train.config import TrainConfig
 
 RUNS = Path("runs")
 
@@ -28,27 +34,47 @@ def int_list(ctx, param, value: str | None) -> list[int] | None:
     return sizes
 
 
+def _flag_name(f: Field) -> str:
+    return f.metadata["flag"] or "--" + f.name.replace("_", "-")
+
+
+def config_options(exclude: tuple[str, ...] = ()) -> Callable:
+    """One click option per TrainConfig flag field: names, defaults and help come from the config."""
+    from train.config import flag_fields
+
+    def decorate(fn: Callable) -> Callable:
+        for f in reversed(flag_fields()):
+            if f.name in exclude:
+                continue
+            default = f.default_factory() if f.default is MISSING else f.default
+            help_text = f.metadata["help"]
+            if isinstance(default, list):
+                shown = f" [default: {','.join(map(str, default))}]" if default else ""
+                option = click.option(_flag_name(f), f.name, callback=int_list, default=None, help=help_text + shown)
+            else:
+                low = f.metadata["min"]
+                kind = click.IntRange(min=low) if isinstance(default, int) and low is not None else type(default)
+                option = click.option(
+                    _flag_name(f), f.name, type=kind, default=default, show_default=True, help=help_text
+                )
+            fn = option(fn)
+        return fn
+
+    return decorate
+
+
+def config_from_flags(flags: dict) -> TrainConfig:
+    """A TrainConfig from parsed flags; flags left out (or layer lists not given) keep the config's defaults."""
+    from train.config import TrainConfig, flag_fields
+
+    given = {f.name: flags[f.name] for f in flag_fields() if flags.get(f.name) is not None}
+    return TrainConfig(dataset="", **given)
+
+
 @click.group(name="smtrain", context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="smspace")
 def main() -> None:
     """Train and inspect sensorimotor predictive networks."""
-
-
-CONFIG_FLAGS = (
-    "steps",
-    "batch_size",
-    "nh",
-    "encoder_layers",
-    "predictor_layers",
-    "lr_start",
-    "lr_end",
-    "lr_decay_steps",
-    "eval_every",
-    "seed",
-    "device",
-    "threads",
-    "loader_workers",
-)
 
 
 @main.command()
@@ -57,76 +83,48 @@ CONFIG_FLAGS = (
 @click.option(
     "--out", type=click.Path(path_type=Path), default=None, help="Run folder [default: runs/<dataset>-nh<N>-seed<S>]."
 )
-@click.option("--steps", type=click.IntRange(min=1), default=100_000, show_default=True)
-@click.option("--batch-size", type=click.IntRange(min=1), default=100, show_default=True)
-@click.option("--nh", type=click.IntRange(min=1), default=3, show_default=True, help="Dimension of h.")
-@click.option("--encoder-layers", callback=int_list, help="e.g. 150,100,50 [default: the paper's for N_m].")
-@click.option("--predictor-layers", callback=int_list, help="[default: 200,150,100]")
-@click.option("--lr-start", type=float, default=1e-3, show_default=True)
-@click.option("--lr-end", type=float, default=1e-5, show_default=True)
-@click.option("--lr-decay-steps", type=click.IntRange(min=0), default=0, help="[default: 80% of --steps]")
-@click.option("--eval-every", type=click.IntRange(min=1), default=1000, show_default=True)
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
-@click.option("--device", default="cpu", show_default=True, help="cpu or cuda")
-@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True, help="torch CPU threads.")
-@click.option("--loader-workers", type=click.IntRange(min=0), default=0, show_default=True)
+@config_options()
 @click.option(
     "--resume",
     "resume_dir",
     type=click.Path(path_type=Path),
     default=None,
-    help="Continue the run in this folder from its last checkpoint.",
+    help="Continue the run in this folder from its last checkpoint (--steps may extend it).",
 )
 @click.option("--overwrite", is_flag=True, help="Replace the run already in --out.")
 @friendly_errors
 def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
     """Train on DATASET (a folder or an id in the lake); prints the final metrics."""
-    from datagen.lake.dataset import Dataset
-    from train.config import TrainConfig
+    from dataclasses import replace
+
+    from lake.dataset import Dataset
+    from train.config import flag_fields
     from train.fit import fit as run_fit
+    from train.fit import resolve_device
     from train.run_dir import RunDir
 
     ctx = click.get_current_context()
     if resume_dir is not None:
         given = [
-            f"--{k.replace('_', '-')}"
-            for k in CONFIG_FLAGS
-            if ctx.get_parameter_source(k) == click.core.ParameterSource.COMMANDLINE and k != "steps"
+            _flag_name(f)
+            for f in flag_fields()
+            if f.name != "steps" and ctx.get_parameter_source(f.name) == click.core.ParameterSource.COMMANDLINE
         ]
         if dataset or given or overwrite:
             raise SmspaceError(f"--resume continues a run with its own config; drop {' '.join(given) or 'DATASET'}")
         run = RunDir.open(resume_dir)
         cfg = run.config
         if ctx.get_parameter_source("steps") == click.core.ParameterSource.COMMANDLINE:
-            cfg.steps = flags["steps"]  # extending a run is allowed; the schedule stays as recorded
+            cfg = replace(cfg, steps=flags["steps"])  # extending a run; the schedule stays as recorded
+            run.write_config(cfg)
         result = run_fit(cfg, run, resume=True)
     else:
         if dataset is None:
             raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
         ds = Dataset.open(dataset, lake)
-        cfg = TrainConfig(
-            dataset=str(ds.folder.resolve()),
-            dataset_id=ds.manifest.dataset_id,
-            dataset_config_hash=ds.manifest.config_hash,
-            steps=flags["steps"],
-            batch_size=flags["batch_size"],
-            n_h=flags["nh"],
-            encoder_layers=flags["encoder_layers"] or [],
-            predictor_layers=flags["predictor_layers"] or [200, 150, 100],
-            lr_start=flags["lr_start"],
-            lr_end=flags["lr_end"],
-            lr_decay_steps=flags["lr_decay_steps"],
-            eval_every=flags["eval_every"],
-            seed=flags["seed"],
-            device=flags["device"],
-            threads=flags["threads"],
-            loader_workers=flags["loader_workers"],
-        )
-        from train.fit import resolve_device
-
+        cfg = config_from_flags(flags).for_dataset(ds.folder, ds.manifest)
         resolve_device(cfg.device)
-        out = out or RUNS / f"{ds.manifest.dataset_id}-nh{cfg.n_h}-seed{cfg.seed}"
-        run = RunDir.create(out, cfg, overwrite)
+        run = RunDir.create(out or RUNS / cfg.run_name, cfg, overwrite)
         result = run_fit(cfg, run)
     click.echo(f"run: {run.path}")
     click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
@@ -136,74 +134,52 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
 @click.option("--setup", "setup_name", required=True, help="grid, grid6, arm, arm6")
 @click.option("--modes", default="MEM,MM,MME", show_default=True)
 @click.option("--worlds", type=click.IntRange(min=1), default=50, show_default=True)
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="First world seed.")
+@click.option(
+    "--seed",
+    "first_world",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="First world seed; a run's seed is its world's.",
+)
 @click.option("--transitions", type=click.IntRange(min=1), default=None, help="[setup default]")
-@click.option("--gen-workers", type=click.IntRange(min=1), default=1, show_default=True)
+@click.option(
+    "--gen-workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Generator processes [default: this machine's cores; bytes do not depend on it].",
+)
 @LAKE_OPTION
 @click.option("--out", type=click.Path(path_type=Path), default=RUNS, show_default=True)
-@click.option("--steps", type=click.IntRange(min=1), default=100_000, show_default=True)
-@click.option("--batch-size", type=click.IntRange(min=1), default=100, show_default=True)
-@click.option("--nh", type=click.IntRange(min=1), default=3, show_default=True)
-@click.option("--encoder-layers", callback=int_list, help="[default: the paper's for N_m]")
-@click.option("--predictor-layers", callback=int_list, help="[default: 200,150,100]")
-@click.option("--eval-every", type=click.IntRange(min=1), default=1000, show_default=True)
-@click.option("--device", default="cpu", show_default=True)
-@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True)
+@config_options(exclude=("seed",))
 @click.option(
     "--max-ensemble", type=click.IntRange(min=1), default=150, show_default=True, help="Runs per vectorised model."
 )
 @click.option("--overwrite", is_flag=True, help="Replace runs in --out made with another config.")
 @friendly_errors
 def sweep(
-    setup_name,
-    modes,
-    worlds,
-    seed,
-    transitions,
-    gen_workers,
-    lake,
-    out,
-    steps,
-    batch_size,
-    nh,
-    encoder_layers,
-    predictor_layers,
-    eval_every,
-    device,
-    threads,
-    max_ensemble,
-    overwrite,
+    setup_name, modes, worlds, first_world, transitions, gen_workers, lake, out, max_ensemble, overwrite, **flags
 ) -> None:
     """Generate missing datasets, then train every (world, mode) run as vectorised ensembles."""
-    from datagen.lake.dataset import default_lake
+    from common.cli import default_workers
     from datagen.setups import check_mode, get_setup
-    from train.config import TrainConfig
+    from lake.dataset import default_lake
     from train.fit import resolve_device
     from train.sweep import sweep as run_sweep
 
     get_setup(setup_name)
     mode_list = [check_mode(m.strip()) for m in modes.split(",") if m.strip()]
-    resolve_device(device)
-    template = TrainConfig(
-        dataset="",
-        steps=steps,
-        batch_size=batch_size,
-        n_h=nh,
-        encoder_layers=encoder_layers or [],
-        predictor_layers=predictor_layers or [200, 150, 100],
-        eval_every=eval_every,
-        device=device,
-        threads=threads,
-    )
+    template = config_from_flags(flags)
+    resolve_device(template.device)
     runs = run_sweep(
         setup_name,
         mode_list,
-        list(range(seed, seed + worlds)),
+        list(range(first_world, first_world + worlds)),
         template,
         lake or default_lake(),
         out,
         transitions,
-        gen_workers,
+        gen_workers or default_workers(),
         max_ensemble,
         overwrite,
     )

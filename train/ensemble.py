@@ -7,24 +7,18 @@ differs. Every run writes the same folder as `smtrain fit`, checkpoint format in
 from __future__ import annotations
 
 import itertools
-import math
-import sys
-import time
-from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
-from tqdm import tqdm
 
-from datagen.errors import SmspaceError
-from datagen.lake.dataset import Dataset
-from train.config import TrainConfig, learning_rate
-from train.evaluation import N_PREDICTIONS, EvalData, scores_row, write_evaluation
-from train.fit import TrainingFailed, build, resolve_device
-from train.loader import TransitionStream
-from train.model import SensorimotorNet, default_encoder_layers
+from common.errors import SmspaceError
+from train.config import TrainConfig
+from train.evaluation import N_PREDICTIONS, EvalData
+from train.fit import build
+from train.loop import open_member, resolve_device, resume_members, train
 from train.run_dir import RunDir
 
 
@@ -115,150 +109,89 @@ def _load_adam_state(net: EnsembleNet, opt: torch.optim.Adam, r: int, saved: dic
         s["exp_avg_sq"][r].copy_(net._to_stacked(src["exp_avg_sq"], is_weight))
 
 
-@dataclass
-class Member:
-    """One run of the ensemble: its folder, config, data and evaluation set."""
+class EnsembleLearner:
+    """R runs stacked in one EnsembleNet with one fused Adam: the `Learner` of a sweep."""
 
-    run: RunDir
-    cfg: TrainConfig
-    stream: TransitionStream
-    data: EvalData
-    rows: list[dict[str, Any]]
-    elapsed: float = 0.0
+    def __init__(self, net: EnsembleNet, optimizer: torch.optim.Adam, data: list[EvalData]):
+        self.net, self.optimizer = net, optimizer
+        self.m_regular = torch.stack([d.m_regular for d in data])
+        self.eval_inputs = [torch.stack([getattr(d, k) for d in data]) for k in ("m_t", "s_t", "m_t1", "s_t1")]
+
+    def set_lr(self, lr: float) -> None:
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+
+    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
+        device = self.m_regular.device
+        m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(device) for k in range(4))
+        per_run = (self.net(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=2).mean(dim=1)  # (R,): each run's own loss
+        self.optimizer.zero_grad(set_to_none=True)
+        per_run.sum().backward()  # parameters are disjoint: each run gets exactly its own gradient
+        self.optimizer.step()
+        return per_run.detach()
+
+    @torch.no_grad()
+    def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        h_all = self.net.encode(self.m_regular).double().cpu().numpy()
+        pred = self.net(*self.eval_inputs[:3])
+        losses = (pred - self.eval_inputs[3]).pow(2).sum(dim=2).mean(dim=1).cpu().numpy()
+        pred = pred[:, :N_PREDICTIONS].cpu().numpy()
+        return losses, list(h_all), list(pred)
+
+    def state_of(self, r: int, lr: float) -> dict[str, Any]:
+        return {"model": self.net.run_state(r), "optimizer": _adam_state_of_run(self.net, self.optimizer, r, lr)}
+
+    def load(self, r: int, checkpoint: dict[str, Any]) -> None:
+        self.net.load_run(r, checkpoint["model"])
+        _load_adam_state(self.net, self.optimizer, r, checkpoint["optimizer"])
+
+
+# What runs of one ensemble must share: the model's shape and the schedule the loop applies to all.
+SHARED = (
+    "steps",
+    "batch_size",
+    "n_h",
+    "encoder_layers",
+    "predictor_layers",
+    "lr_start",
+    "lr_end",
+    "lr_decay_steps",
+    "eval_every",
+    "device",
+)
 
 
 def _check_compatible(cfgs: list[TrainConfig]) -> None:
-    keys = (
-        "steps",
-        "batch_size",
-        "n_h",
-        "encoder_layers",
-        "predictor_layers",
-        "lr_start",
-        "lr_end",
-        "lr_decay_steps",
-        "eval_every",
-        "device",
-    )
     first = cfgs[0].to_dict()
     for cfg in cfgs[1:]:
         other = cfg.to_dict()
-        diff = [k for k in keys if other[k] != first[k]]
+        diff = [k for k in SHARED if other[k] != first[k]]
         if diff:
             raise SmspaceError(f"runs of one ensemble must share {', '.join(diff)}")
 
 
-def train_ensemble(runs: list[RunDir], resume_step: int = 0, threads: int = 1, progress: bool = True) -> None:
-    """Train runs (all at `resume_step`: 0 for new runs) together to their configured steps."""
-    cfgs = [r.config for r in runs]
-    _check_compatible(cfgs)
-    cfg0 = cfgs[0]
+def train_ensemble(runs: list[RunDir], resume: bool = False, threads: int = 1, progress: bool = True) -> None:
+    """Train runs together to their configured steps: from scratch, or (resume) from their checkpoints."""
     torch.set_num_threads(threads)
-    device = resolve_device(cfg0.device)
-    datasets = [Dataset(c.dataset) for c in cfgs]
-    n_motor, shape = datasets[0].manifest.n_motor, datasets[0].manifest.sensor_shape
-    if any(d.manifest.n_motor != n_motor or d.manifest.sensor_shape != shape for d in datasets):
+    device = resolve_device(runs[0].config.device)
+    members = [open_member(run, run.config, device) for run in runs]
+    for m in members:
+        if not m.cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
+            m.cfg = m.cfg.for_dataset(m.dataset.folder, m.dataset.manifest)
+    _check_compatible([m.cfg for m in members])
+    manifests = [m.dataset.manifest for m in members]
+    n_motor, shape = manifests[0].n_motor, manifests[0].sensor_shape
+    if any(mf.n_motor != n_motor or mf.sensor_shape != shape for mf in manifests):
         raise SmspaceError("runs of one ensemble must have datasets of the same setup")
     n_sensor = int(np.prod(shape))
-    count = len(runs)
-    enc = list(cfg0.encoder_layers or default_encoder_layers(n_motor))
-    net = EnsembleNet(count, n_motor, n_sensor, cfg0.n_h, enc, list(cfg0.predictor_layers)).to(device)
+    cfg0 = members[0].cfg
+    net = EnsembleNet(len(runs), n_motor, n_sensor, cfg0.n_h, cfg0.encoder_layers, cfg0.predictor_layers).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg0.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
-    members = []
-    for r, (run, cfg, ds) in enumerate(zip(runs, cfgs, datasets, strict=True)):
-        stream = TransitionStream(ds, cfg.batch_size, seed=cfg.seed, window=cfg.shuffle_window)
-        member = Member(run, cfg, stream, EvalData.load(ds, cfg.eval_transitions, device), [])
-        if resume_step:
-            ckpt = run.load_checkpoint(str(device))
-            if int(ckpt["step"]) != resume_step:
-                raise SmspaceError(f"{run.path} is at step {ckpt['step']}, not {resume_step}")
-            net.load_run(r, ckpt["model"])
-            _load_adam_state(net, opt, r, ckpt["optimizer"])
-            stream.load_state_dict(ckpt["stream"])
-            member.elapsed = float(ckpt["elapsed_s"])
-            member.rows = [row for row in run.metrics() if row["step"] <= resume_step]
-            run.truncate_after(resume_step)
-        else:
-            model: SensorimotorNet = build(cfg, n_motor, n_sensor, device)[0]  # the very init `fit` draws
-            net.load_run(r, model.state_dict())
-        members.append(member)
-
-    m_reg = torch.stack([m.data.m_regular for m in members])
-    eval_inputs = [torch.stack([getattr(m.data, k) for m in members]) for k in ("m_t", "s_t", "m_t1", "s_t1")]
-
-    @torch.no_grad()
-    def record(step: int, train_loss: np.ndarray, wall: float) -> None:
-        h_all = net.encode(m_reg).double().cpu().numpy()
-        pred = net(*eval_inputs[:3])
-        losses = (pred - eval_inputs[3]).pow(2).sum(dim=2).mean(dim=1).cpu().numpy()
-        pred = pred[:, :N_PREDICTIONS].cpu().numpy()
-        lr = learning_rate(cfg0, step)
+    learner = EnsembleLearner(net, opt, [m.data for m in members])
+    if resume:
+        step = resume_members(learner, members, device)
+    else:
+        step = 0
         for r, m in enumerate(members):
-            m.elapsed += wall / count
-            row = {
-                "step": step,
-                "lr": lr,
-                "train_loss": float(train_loss[r]),
-                **scores_row(h_all[r], m.data.p_regular, float(losses[r])),
-                "elapsed_s": m.elapsed,
-            }
-            checkpoint = {
-                "model": net.run_state(r),
-                "optimizer": _adam_state_of_run(net, opt, r, lr),
-                "stream": m.stream.state_dict(),
-                "step": step,
-                "elapsed_s": m.elapsed,
-            }
-            write_evaluation(m.run, m.rows, row, h_all[r], m.data, pred[r], checkpoint)
-
-    step = resume_step
-    if step == 0:
-        record(0, np.full(count, math.nan), 0.0)
-    iterators = [iter(m.stream) for m in members]
-    loss_sum = torch.zeros(count, device=device)
-    loss_count = 0
-    bar = tqdm(
-        total=cfg0.steps,
-        initial=step,
-        unit="step",
-        disable=None if progress else True,
-        file=sys.stderr,
-        desc=f"ensemble of {count}",
-    )
-    try:
-        t0 = time.perf_counter()
-        while step < cfg0.steps:
-            for group in opt.param_groups:
-                group["lr"] = learning_rate(cfg0, step)
-            batches = [next(it) for it in iterators]
-            m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(device) for k in range(4))
-            per_run = (net(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=2).mean(dim=1)  # (R,): each run's own loss
-            opt.zero_grad(set_to_none=True)
-            per_run.sum().backward()  # parameters are disjoint: each run gets exactly its own gradient
-            opt.step()
-            step += 1
-            for m in members:
-                m.stream.batches_consumed = step
-            loss_sum += per_run.detach()
-            loss_count += 1
-            bar.update()
-            if step % cfg0.eval_every == 0 or step == cfg0.steps:
-                train_loss = loss_sum.cpu().numpy() / loss_count
-                bad = [members[r].run.path.name for r in np.flatnonzero(~np.isfinite(train_loss))]
-                if bad:
-                    raise TrainingFailed(
-                        f"loss became NaN or inf before step {step} in {', '.join(bad)}; "
-                        "stopped, the checkpoints of the previous evaluation are kept"
-                    )
-                record(step, train_loss, time.perf_counter() - t0)
-                t0 = time.perf_counter()
-                loss_sum.zero_()
-                loss_count = 0
-    except SmspaceError as e:
-        for m in members:
-            m.run.set_status("failed", m.rows[-1]["step"] if m.rows else 0, str(e))
-        raise
-    finally:
-        bar.close()
-    for m in members:
-        m.run.set_status("finished", step)
+            net.load_run(r, build(m.cfg, n_motor, n_sensor, device)[0].state_dict())  # the very init `fit` draws
+    train(learner, members, step, progress)

@@ -8,10 +8,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from datagen.lake.dataset import Dataset
+from lake.dataset import Dataset
+from lake.normalise import normalisers
 from metrics import spatial_scores
-from train.loader import normalisers
-from train.run_dir import RunDir
+from train.run_dir import PREDICTED, TRUE, RunDir
 
 N_PREDICTIONS = 16  # predicted vs true s_t1 kept per evaluation, for viewers and reports
 
@@ -64,7 +64,7 @@ def write_evaluation(
     two writes leaves the checkpoint at or behind the metrics (resume trims them back)."""
     rows.append(row)
     step = row["step"]
-    extra = {"s_t1_pred": pred} | ({"s_t1_true": data.s_t1[:N_PREDICTIONS].cpu().numpy()} if step == 0 else {})
+    extra = {PREDICTED: pred} | ({TRUE: data.s_t1[:N_PREDICTIONS].cpu().numpy()} if step == 0 else {})
     run.write_embeddings(step, h, data.p_regular, extra)
     run.write_metrics(rows)
     run.save_checkpoint(checkpoint)

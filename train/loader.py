@@ -19,9 +19,10 @@ import numpy as np
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from datagen.lake.dataset import Dataset
-from datagen.lake.manifest import Manifest
-from datagen.lake.shards import ShardReader
+from lake.dataset import Dataset
+from lake.manifest import Manifest
+from lake.normalise import normalisers
+from lake.shards import ShardReader
 
 
 @dataclass(frozen=True)
@@ -29,26 +30,6 @@ class Unit:
     shard: int
     first_index: int
     count: int
-
-
-class Normaliser:
-    """SPEC 2.5: per component, 2(x − min)/(max − min) − 1 with the dataset's min/max; max = min maps to 0."""
-
-    def __init__(self, lo: list[float], hi: list[float]):
-        lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-        span = hi_a - lo_a
-        safe = np.where(span > 0, span, 1.0)
-        self.scale = np.where(span > 0, 2.0 / safe, 0.0).astype(np.float32)
-        self.offset = np.where(span > 0, -2.0 * lo_a / safe - 1.0, 0.0).astype(np.float32)
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        flat = x.reshape(len(x), -1).astype(np.float32)
-        return flat * self.scale + self.offset
-
-
-def normalisers(manifest: Manifest) -> tuple[Normaliser, Normaliser]:
-    n = manifest.normalisation
-    return Normaliser(n["m_min"], n["m_max"]), Normaliser(n["s_min"], n["s_max"])
 
 
 def dataset_units(manifest: Manifest) -> list[Unit]:

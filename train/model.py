@@ -1,4 +1,4 @@
-"""The sensorimotor predictive network (SPEC 3): a siamese motor encoder and a sensory predictor."""
+"""The sensorimotor predictive network (docs/MODEL.md §3): a siamese motor encoder and a sensory predictor."""
 
 from __future__ import annotations
 
@@ -7,14 +7,6 @@ from collections.abc import Sequence
 
 import torch
 from torch import nn
-
-PAPER_ENCODER = {3: (150, 100, 50), 6: (500, 400, 300, 200)}
-PAPER_PREDICTOR = (200, 150, 100)
-
-
-def default_encoder_layers(n_motor: int) -> tuple[int, ...]:
-    """The paper's encoder: (150, 100, 50), and (500, 400, 300, 200) for the 6-motor setups."""
-    return PAPER_ENCODER.get(n_motor, PAPER_ENCODER[3])
 
 
 def mlp(sizes: Sequence[int]) -> nn.Sequential:
@@ -37,13 +29,12 @@ class SensorimotorNet(nn.Module):
         self,
         n_motor: int,
         n_sensor: int,
-        n_h: int = 3,
-        encoder_layers: Sequence[int] | None = None,
-        predictor_layers: Sequence[int] = PAPER_PREDICTOR,
+        n_h: int,
+        encoder_layers: Sequence[int],
+        predictor_layers: Sequence[int],
     ):
         super().__init__()
-        enc = tuple(encoder_layers) if encoder_layers else default_encoder_layers(n_motor)
-        self.encoder = mlp([n_motor, *enc, n_h])
+        self.encoder = mlp([n_motor, *encoder_layers, n_h])
         self.predictor = mlp([2 * n_h + n_sensor, *predictor_layers, n_sensor])
 
     def encode(self, m: torch.Tensor) -> torch.Tensor:

@@ -10,11 +10,11 @@ from typing import Any
 
 import numpy as np
 
-from datagen.errors import SmspaceError
-from datagen.lake.dataset import Dataset
+from common.errors import SmspaceError
+from lake.dataset import Dataset
+from lake.normalise import normalisers
 from metrics import affine_projection
-from train.loader import normalisers
-from train.run_dir import EMBEDDINGS, RunDir
+from train.run_dir import RunDir
 
 MODE_COLOURS = {"MEM": "tab:red", "MM": "tab:green", "MME": "tab:blue"}
 METRICS = (("eval_loss", "loss"), ("d_topo", "D_topo"), ("d_metric", "D_metric"))
@@ -41,7 +41,8 @@ def load_runs(paths: list[Path]) -> list[RunData]:
         rows = run.metrics()
         if not rows:
             raise SmspaceError(f"{path} has no evaluations yet")
-        mode = run.config.dataset_id.rsplit("-", 1)[-1]
+        cfg = run.config
+        mode = cfg.mode or Dataset(cfg.dataset).manifest.mode  # run folders of smspace 0.1 lack the mode
         runs.append(RunData(run, mode, rows))
     return runs
 
@@ -115,9 +116,7 @@ def projection_figure(run: RunData, path: Path) -> None:
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title(f"position space   D_metric = {last['d_metric']:.3f}")
     ax = fig.add_subplot(1, 4, 4, projection="3d")
-    folder = run.run.path / EMBEDDINGS
-    true = np.load(folder / "s_t1_true-0000000.npy", allow_pickle=False)
-    pred = np.load(folder / f"s_t1_pred-{step:07d}.npy", allow_pickle=False)
+    true, pred = run.run.true_s_t1(), run.run.predictions(step)
     ax.scatter(*true[:, :3].T, facecolors="none", edgecolors="tab:green", s=40, label="true")
     ax.scatter(*pred[:, :3].T, color="m", s=10, label="predicted")
     ax.legend(fontsize=8)

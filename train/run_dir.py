@@ -17,8 +17,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from datagen.errors import SmspaceError
-from datagen.lake.atomic import remove_partials, write_atomic
+from common.errors import SmspaceError
+from lake.atomic import remove_partials, write_atomic
 from train.config import TrainConfig
 
 CONFIG = "config.json"
@@ -48,6 +48,14 @@ def _parquet_bytes(table: pa.Table) -> bytes:
 
 def embedding_file(step: int) -> str:
     return f"step-{step:07d}.parquet"
+
+
+def array_file(name: str, step: int) -> str:
+    """An array saved beside the embeddings: s_t1_pred at every evaluation, s_t1_true at step 0."""
+    return f"{name}-{step:07d}.npy"
+
+
+PREDICTED, TRUE = "s_t1_pred", "s_t1_true"
 
 
 class RunDir:
@@ -123,11 +131,19 @@ class RunDir:
         table = pa.table(columns, metadata={"step": str(step)})
         write_atomic(folder / embedding_file(step), _parquet_bytes(table))
         for name, value in extra.items():
-            write_atomic(folder / f"{name}-{step:07d}.npy", _npy_bytes(value))
+            write_atomic(folder / array_file(name, step), _npy_bytes(value))
 
     def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
         table = pq.read_table(self.path / EMBEDDINGS / embedding_file(step))
         return _from_fixed_list(table["h"]), _from_fixed_list(table["p"])
+
+    def predictions(self, step: int) -> np.ndarray:
+        """The normalised s_t1 the network predicted at `step` for the first evaluation transitions."""
+        return np.load(self.path / EMBEDDINGS / array_file(PREDICTED, step), allow_pickle=False)
+
+    def true_s_t1(self) -> np.ndarray:
+        """The normalised s_t1 those predictions aim at (saved once, at step 0)."""
+        return np.load(self.path / EMBEDDINGS / array_file(TRUE, 0), allow_pickle=False)
 
     def truncate_after(self, step: int) -> None:
         for path in (self.path / EMBEDDINGS).glob("*-*.*"):
@@ -139,6 +155,10 @@ class RunDir:
         buf = io.BytesIO()
         torch.save(state, buf)
         write_atomic(self.path / CHECKPOINT, buf.getvalue())
+
+    def checkpoint_step(self) -> int:
+        """The step of the last checkpoint; 0 when there is none yet."""
+        return int(self.load_checkpoint()["step"]) if (self.path / CHECKPOINT).exists() else 0
 
     def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
         path = self.path / CHECKPOINT

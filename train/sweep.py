@@ -11,13 +11,13 @@ from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
 
-from datagen.errors import SmspaceError
+from common.errors import SmspaceError
 from datagen.generate import generate
-from datagen.lake.manifest import load_manifest
 from datagen.setups import get_setup
+from lake.manifest import load_manifest
 from train.config import TrainConfig
 from train.ensemble import train_ensemble
-from train.run_dir import CHECKPOINT, CONFIG, RunDir
+from train.run_dir import CONFIG, RunDir
 
 # What a re-run may change: more steps extend a study, with the learning-rate schedule as recorded.
 RESUMABLE = ("steps", "lr_decay_steps")
@@ -25,20 +25,11 @@ RESUMABLE = ("steps", "lr_decay_steps")
 
 def plan_runs(template: TrainConfig, datasets: list[Path], out: Path, overwrite: bool) -> list[tuple[RunDir, int]]:
     """(run folder, step it is at) for every dataset; creates new folders, checks old ones."""
-    import torch
-
     plans = []
     for folder in datasets:
         manifest = load_manifest(folder)
-        seed = manifest.world_seed
-        cfg = replace(
-            template,
-            dataset=str(folder.resolve()),
-            dataset_id=manifest.dataset_id,
-            dataset_config_hash=manifest.config_hash,
-            seed=seed,
-        )
-        path = out / f"{manifest.dataset_id}-nh{cfg.n_h}-seed{seed}"
+        cfg = replace(template, seed=manifest.world_seed).for_dataset(folder, manifest)
+        path = out / cfg.run_name
         if (path / CONFIG).exists() and not overwrite:
             run = RunDir.open(path)
             old = run.config.to_dict()
@@ -48,7 +39,7 @@ def plan_runs(template: TrainConfig, datasets: list[Path], out: Path, overwrite:
                 raise SmspaceError(f"{path} holds a run with another {', '.join(diff)}; pass --overwrite or --out")
             if old["steps"] != new["steps"]:  # extending a study: the schedule stays as recorded
                 run.write_config(replace(run.config, steps=cfg.steps))
-            step = int(torch.load(path / CHECKPOINT, weights_only=True)["step"]) if (path / CHECKPOINT).exists() else 0
+            step = run.checkpoint_step()
             if step == 0:  # killed before its first checkpoint: start it afresh
                 run = RunDir.create(path, cfg, overwrite=True)
         else:
@@ -80,5 +71,5 @@ def sweep(
             by_step[step].append(run)
     for step, runs in sorted(by_step.items()):
         for i in range(0, len(runs), max_ensemble):
-            train_ensemble(runs[i : i + max_ensemble], resume_step=step, threads=template.threads)
+            train_ensemble(runs[i : i + max_ensemble], resume=step > 0, threads=template.threads)
     return [run for run, _ in plans]

@@ -7,10 +7,11 @@ import json
 
 import numpy as np
 
-from datagen.lake.dataset import Dataset
-from datagen.rerun_output import ViewOutput, recording
+from common.rerun_output import ViewOutput, recording
+from lake.dataset import Dataset
+from lake.normalise import normalisers
 from metrics import affine_projection
-from train.run_dir import EMBEDDINGS, RunDir
+from train.run_dir import RunDir
 
 
 def position_colours(p: np.ndarray) -> np.ndarray:
@@ -56,10 +57,6 @@ def blueprint(images: bool):
         ),
         collapse_panels=True,
     )
-
-
-def _denormalise(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    return (x + 1) / 2 * (hi - lo) + lo
 
 
 def view_run(run: RunDir, output: ViewOutput) -> int:
@@ -120,14 +117,13 @@ def view_run(run: RunDir, output: ViewOutput) -> int:
 def _log_predictions(rec, run: RunDir, steps: np.ndarray, times, manifest, shape) -> None:
     import rerun as rr
 
-    folder = run.path / EMBEDDINGS
-    true = np.load(folder / "s_t1_true-0000000.npy", allow_pickle=False)
-    preds = np.stack([np.load(folder / f"s_t1_pred-{int(s):07d}.npy", allow_pickle=False) for s in steps])
-    lo, hi = np.array(manifest.normalisation["s_min"]), np.array(manifest.normalisation["s_max"])
+    true = run.true_s_t1()
+    preds = np.stack([run.predictions(int(s)) for s in steps])
+    _, s_norm = normalisers(manifest)
     if len(shape) == 3:
 
         def to_image(x: np.ndarray) -> np.ndarray:
-            raw = np.clip(np.rint(_denormalise(x, lo, hi)), 0, 255).astype(np.uint8)
+            raw = np.clip(np.rint(s_norm.inverse(x)), 0, 255).astype(np.uint8)
             return tile(raw.reshape(len(x), *shape))
 
         rec.log("predictions/true", rr.Image(to_image(true)), static=True)

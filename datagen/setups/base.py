@@ -1,30 +1,17 @@
-"""What every agent/world setup provides to the generator (SPEC 2)."""
+"""What a setup is (docs/MODEL.md §2): a world to build from a seed, its numbers, and its hooks
+for previews and viewers. Each setup's module declares its own; the registry only collects them.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
-MODES = ("MEM", "MM", "MME")
-
-
-@dataclass(frozen=True)
-class Transitions:
-    """A block of i.i.d. transitions, with privileged ground truth alongside."""
-
-    m_t: np.ndarray  # (n, N_m) float32
-    m_t1: np.ndarray
-    s_t: np.ndarray  # (n, *sensor_shape), float32 or uint8
-    s_t1: np.ndarray
-    p_t: np.ndarray  # (n, 2) float32
-    p_t1: np.ndarray
-    shift_t: np.ndarray  # (n, 2) float32
-    shift_t1: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.m_t)
+from lake.transitions import Transitions
 
 
 class World(Protocol):
@@ -53,7 +40,7 @@ class World(Protocol):
 
 
 def draw_transitions(world: World, mode: str, rng: np.random.Generator, n: int) -> Transitions:
-    """Draw n transitions; the mode only decides how the shifts are drawn (SPEC 1)."""
+    """Draw n transitions; the mode only decides how the shifts are drawn (docs/MODEL.md §1)."""
     m_t, p_t = world.sample_motors(rng, n)
     m_t1, p_t1 = world.sample_motors(rng, n)
     if mode == "MM":
@@ -78,3 +65,24 @@ def draw_transitions(world: World, mode: str, rng: np.random.Generator, n: int) 
         shift_t=np.ascontiguousarray(shift_t, dtype=f32),
         shift_t1=np.ascontiguousarray(shift_t1, dtype=f32),
     )
+
+
+def _nothing() -> None:
+    return None
+
+
+@dataclass(frozen=True)
+class Setup:
+    name: str
+    n_motor: int
+    description: str
+    build: Callable[[int], World]
+    encoder_layers: tuple[int, ...]  # the paper's Net_enc hidden sizes for this body
+    shift_bound: float  # |shift component| ≤ shift_bound (the MM shift may sit outside: it is fixed)
+    default_transitions: int = 150_000
+    default_shard_size: int = 32768  # transitions per shard: arm shards are smaller so workers stay balanced
+    preflight: Callable[[], None] = _nothing  # fails early (before anything is written) if unusable
+    # Pictures of the world itself for `smgen preview`: (world, folder) → files written.
+    preview: Callable[[Any, Path], list[Path]] | None = None
+    # Extra panels for `smgen view`: (recording, world, transitions, time columns); None: none.
+    view_world: Callable[[Any, Any, Transitions, list], None] | None = None

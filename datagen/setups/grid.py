@@ -1,10 +1,13 @@
-"""The discrete torus worlds of SPEC 2.1 (`grid`, 3 motors) and 2.2 (`grid6`, 6 motors)."""
+"""The discrete torus worlds of docs/MODEL.md §2.1 (`grid`, 3 motors) and §2.2 (`grid6`, 6 motors)."""
 
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
+
+from datagen.setups.base import Setup
 
 GRID_SIZE = 10
 LEVELS = np.linspace(0.0, 1.0, 5)  # u ∈ {0, .25, .5, .75, 1}
@@ -13,7 +16,7 @@ STATIC_SHIFT = np.array([5.0, 5.0])
 
 
 def sensory_table(rng: np.random.Generator, n_sensors: int = 4, size: int = GRID_SIZE) -> np.ndarray:
-    """S[r, c, i] (size × size × n_sensors), each component a sum of six random cosines (SPEC 2.1)."""
+    """S[r, c, i] (size × size × n_sensors), each component a sum of six random cosines (docs/MODEL.md §2.1)."""
     c, r = np.meshgrid(np.arange(size), np.arange(size))
     x, y = c / size, r / size
     table = np.empty((size, size, n_sensors))
@@ -34,7 +37,7 @@ def level_grid(n_dims: int) -> np.ndarray:
 
 
 def _six_motor_nonlinearities(x: np.ndarray) -> np.ndarray:
-    """Per-column maps of [0, 1] onto itself (SPEC 2.2), inverse of the paper's f."""
+    """Per-column maps of [0, 1] onto itself (docs/MODEL.md §2.2), inverse of the paper's f."""
     log_map = (np.log((x[:, 3] + 0.1) / 1.1) - np.log(0.1 / 1.1)) / (-np.log(0.1 / 1.1))
     return np.stack(
         [np.sqrt(x[:, 0]), x[:, 1] ** 2, x[:, 2] ** 3, log_map, (np.exp(x[:, 4]) - 1) / (np.e - 1), x[:, 5]],
@@ -80,3 +83,51 @@ class GridWorld:
 
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
         return self.motors, self.positions
+
+
+def sensory_table_image(table: np.ndarray, scale: int = 24):
+    """The world's S[r, c, i] as one grey panel per component (black = min, white = max)."""
+    from PIL import Image
+
+    panels = []
+    for i in range(table.shape[2]):
+        t = table[:, :, i]
+        g = np.round(255 * (t - t.min()) / max(t.max() - t.min(), 1e-12)).astype(np.uint8)
+        panel = np.pad(g.repeat(scale, 0).repeat(scale, 1), 4, constant_values=255)
+        panels.append(np.repeat(panel[..., None], 3, axis=2))
+    return Image.fromarray(np.concatenate(panels, axis=1))
+
+
+def write_preview(world: GridWorld, out: Path) -> list[Path]:
+    path = out / "sensory_table.png"
+    sensory_table_image(world.table).save(path)
+    return [path]
+
+
+def _builder(n_motor: int):
+    def build(seed: int) -> GridWorld:
+        return GridWorld(seed, n_motor)
+
+    return build
+
+
+SETUPS = (
+    Setup(
+        "grid",
+        n_motor=3,
+        description="10×10 torus, 3 motors, 4 sensors (docs/MODEL.md §2.1)",
+        build=_builder(3),
+        encoder_layers=(150, 100, 50),
+        shift_bound=float(max(-SHIFT_LOW, SHIFT_HIGH)),
+        preview=write_preview,
+    ),
+    Setup(
+        "grid6",
+        n_motor=6,
+        description="10×10 torus, 6 mixed motors (docs/MODEL.md §2.2)",
+        build=_builder(6),
+        encoder_layers=(500, 400, 300, 200),
+        shift_bound=float(max(-SHIFT_LOW, SHIFT_HIGH)),
+        preview=write_preview,
+    ),
+)

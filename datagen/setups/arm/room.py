@@ -1,4 +1,4 @@
-"""The random room of SPEC 2.3 as plain data, drawn from a seed: no SAPIEN needed to describe it.
+"""The random room of docs/MODEL.md §2.3 as plain data, drawn from a seed: no SAPIEN needed to describe it.
 
 Textures are procedural (we ship no image assets we did not make).
 """

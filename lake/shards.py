@@ -19,9 +19,9 @@ from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 import schemas
-from datagen.errors import DatasetCorrupt, SmspaceError
-from datagen.lake.atomic import atomic_writer
-from datagen.setups.base import Transitions
+from common.errors import DatasetCorrupt, SmspaceError
+from lake.atomic import atomic_writer
+from lake.transitions import Transitions
 
 TRANSITIONS_TOPIC = "/transitions"
 REGULAR_TOPIC = "/regular_sampling"

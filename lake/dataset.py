@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen.errors import SmspaceError
-from datagen.lake.manifest import MANIFEST, Manifest, load_manifest
-from datagen.lake.shards import Block, ShardReader
-from datagen.setups.base import Transitions
+from common.errors import SmspaceError
+from lake.manifest import MANIFEST, Manifest, load_manifest
+from lake.shards import Block, ShardReader
+from lake.transitions import Transitions
 
 DEFAULT_LAKE = Path("data/lake")
 
@@ -63,8 +63,7 @@ class Dataset:
                 break
         if not parts:
             raise SmspaceError(f"dataset {self.folder} has no transitions")
-        fields = Transitions.__dataclass_fields__
-        return Transitions(**{f: np.concatenate([getattr(p, f) for p in parts])[:limit] for f in fields})
+        return Transitions.concat(parts)[:limit]
 
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
         with ShardReader(self.folder / self.manifest.regular_sampling["file"]) as reader:

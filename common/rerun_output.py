@@ -1,7 +1,7 @@
 """Where a rerun recording goes: an .rrd file, a web viewer on 127.0.0.1, or a spawned viewer.
 
 The rerun CLI binds 0.0.0.0 unless told otherwise, and killing its Python wrapper leaves the real
-binary running (research/mcap-rerun-probe.md P3, P4): the web viewer here is the binary itself,
+binary running (measured with rerun-sdk 0.41): the web viewer here is the binary itself,
 bound to 127.0.0.1, in its own process group, which Ctrl-C takes down whole.
 """
 
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import click
 
-from datagen.errors import SmspaceError
+from common.errors import SmspaceError
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The arm in a room (SPEC 2.3, 2.4) on SAPIEN 3: a planar arm whose end carries a 16×16 camera.
+"""The arm in a room (docs/MODEL.md §2.3, §2.4) on SAPIEN 3: a planar arm whose end carries a 16×16 camera.
 
 The arm is a SAPIEN articulation (revolute joints about the vertical; for arm6 two prismatic
 joints set the 2nd and 3rd segment lengths); p is read from its end link. The camera sits at the
@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen.setups.room import ROOM_HALF, WALL_HEIGHT, Room, draw_room
-from datagen.setups.vulkan import require_render_device
+from datagen.setups.arm.room import ROOM_HALF, WALL_HEIGHT, Room, draw_room
+from datagen.setups.arm.vulkan import require_render_device
 
 BASE_HEIGHT = 1.6
 IMAGE_SIZE = 16

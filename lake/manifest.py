@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import schemas
-from datagen.errors import DatasetCorrupt, SmspaceError
-from datagen.lake.atomic import write_atomic
+from common.errors import DatasetCorrupt, SmspaceError
+from lake.atomic import write_atomic
 
 MANIFEST = "manifest.json"
 GENERATION = "generation.json"  # present only while a generation is unfinished
@@ -83,6 +83,9 @@ class Manifest:
     shards: list[dict[str, Any]]  # file, first_index, transitions, bytes, sha256
     normalisation: dict[str, list[float]]  # m_min, m_max (over m_t), s_min, s_max (over s_t)
     regular_sampling: dict[str, Any]  # file, count, bytes, sha256
+    # |shift component| ≤ shift_bound in MEM and MME (the MM shift is one fixed value); recorded so
+    # that validate needs no knowledge of the setups. None only in manifests written before 0.2.
+    shift_bound: float | None = None
     software: dict[str, str] = field(default_factory=software_versions)
 
     @property

@@ -11,9 +11,9 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from datagen.errors import SmspaceError
-from datagen.lake.atomic import write_atomic
-from datagen.lake.manifest import MANIFEST, Manifest, load_manifest
+from common.errors import SmspaceError
+from lake.atomic import write_atomic
+from lake.manifest import MANIFEST, Manifest, load_manifest
 
 CATALOG = "catalog.parquet"
 LOCK = ".catalog.lock"

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import functools
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import click
 
-from datagen.errors import SmspaceError
+from common.errors import SmspaceError
 
 LAKE_OPTION = click.option(
     "--lake",
@@ -37,3 +38,11 @@ def friendly_errors(fn: Callable) -> Callable:
             fail(str(e), e.exit_code)
 
     return wrapper
+
+
+def default_workers() -> int:
+    """The cores this process may use: the default number of generator processes."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)

@@ -1,1 +1,0 @@
-"""The MCAP data lake: shards, manifests, the catalog, reading and validation."""

@@ -1,0 +1,48 @@
+"""The arm in a room (docs/MODEL.md §2.3, §2.4): `arm` (3 revolute joints) and `arm6` (4 revolute,
+2 prismatic). SAPIEN is imported only when a world is first rendered."""
+
+from __future__ import annotations
+
+from datagen.setups.arm.views import log_room_map, write_preview
+from datagen.setups.arm.vulkan import require_render_device
+from datagen.setups.arm.world import SHIFT_BOUND, ArmWorld, planar_fk
+from datagen.setups.base import Setup
+
+
+def _builder(n_motor: int):
+    def build(seed: int) -> ArmWorld:
+        return ArmWorld(seed, n_motor)
+
+    return build
+
+
+_COMMON = dict(
+    shift_bound=SHIFT_BOUND,
+    default_shard_size=8192,
+    preflight=require_render_device,
+    preview=write_preview,
+    view_world=log_room_map,
+)
+
+SETUPS = (
+    Setup(
+        "arm",
+        n_motor=3,
+        description="3-joint arm with a 16×16 camera in a room (docs/MODEL.md §2.3)",
+        build=_builder(3),
+        encoder_layers=(150, 100, 50),
+        default_transitions=150_000,
+        **_COMMON,
+    ),
+    Setup(
+        "arm6",
+        n_motor=6,
+        description="6-joint arm (2 prismatic) in a room (docs/MODEL.md §2.4)",
+        build=_builder(6),
+        encoder_layers=(500, 400, 300, 200),
+        default_transitions=300_000,
+        **_COMMON,
+    ),
+)
+
+__all__ = ["SETUPS", "ArmWorld", "planar_fk"]

@@ -1,0 +1,58 @@
+"""The imports run one way: setups → lake, train → lake, never lake → setups, train or metrics."""
+
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+import sys
+
+from .conftest import ROOT
+
+OUTSIDE_LAKE = ("datagen", "train", "metrics")
+OUTSIDE_SPEC = re.compile(r"\bSPEC(\.md|\s+\d|\s+§)")  # the specification the project was built from is not shipped
+
+
+def imported_modules(path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+    return names
+
+
+def test_the_lake_imports_nothing_of_the_generators_or_training():
+    files = sorted((ROOT / "lake").rglob("*.py"))
+    assert len(files) >= 8
+    offending = {
+        f"{path.relative_to(ROOT)} imports {name}"
+        for path in files
+        for name in imported_modules(path)
+        if name.split(".")[0] in OUTSIDE_LAKE
+    }
+    assert not offending, offending
+
+
+def test_importing_the_whole_lake_loads_no_setup():
+    code = (
+        "import sys, lake.catalog, lake.dataset, lake.normalise, lake.shards, lake.validate, lake.transitions;"
+        "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] in ('datagen', 'train', 'metrics'))))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == ""
+
+
+def test_common_imports_nothing_of_the_project_but_itself():
+    for path in sorted((ROOT / "common").rglob("*.py")):
+        for name in imported_modules(path):
+            assert name.split(".")[0] not in (*OUTSIDE_LAKE, "lake"), f"{path.relative_to(ROOT)} imports {name}"
+
+
+def test_nothing_points_outside_the_repository():
+    tracked = subprocess.run(["git", "ls-files"], capture_output=True, text=True, cwd=ROOT, check=True).stdout.split()
+    texts = [p for p in tracked if p.endswith((".py", ".md", ".sh", ".toml")) and p != "tests/test_layout.py"]
+    bad = [p for p in texts if "../shared" in (ROOT / p).read_text() or OUTSIDE_SPEC.search((ROOT / p).read_text())]
+    assert not bad, bad

@@ -1,0 +1,182 @@
+"""The one training loop, for a lone run (`smtrain fit`) and for a stacked ensemble (`smtrain sweep`).
+
+It owns what both must do the same way: the learning-rate schedule, per-run loss accumulation,
+evaluation at step 0 and every `eval_every` steps (metrics row, h, predictions, then the
+checkpoint), NaN handling, status, and resuming from the checkpoints. What differs between a
+lone model and a stacked ensemble sits behind `Learner`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+from tqdm import tqdm
+
+from common.errors import SmspaceError
+from lake.dataset import Dataset
+from train.config import TrainConfig, learning_rate
+from train.evaluation import EvalData, scores_row, write_evaluation
+from train.loader import TransitionStream
+from train.run_dir import RunDir
+
+
+class TrainingFailed(SmspaceError):
+    """Training itself went wrong (NaN loss); the last good checkpoint is kept."""
+
+    exit_code = 1
+
+
+class Learner(Protocol):
+    """R runs' models and optimisers; run r sees only its own batches and gradients."""
+
+    def set_lr(self, lr: float) -> None: ...
+
+    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
+        """One optimiser step on batch r for run r; returns the (R,) losses, detached."""
+        ...
+
+    def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        """Per run: loss on its evaluation set, h of its regular sampling, its first predictions."""
+        ...
+
+    def state_of(self, r: int, lr: float) -> dict[str, Any]:
+        """Run r's {"model", "optimizer"} state in the lone run's checkpoint format."""
+        ...
+
+    def load(self, r: int, checkpoint: dict[str, Any]) -> None: ...
+
+
+@dataclass
+class Member:
+    """One run being trained: its folder, config, data stream, evaluation set and metrics so far."""
+
+    run: RunDir
+    cfg: TrainConfig
+    dataset: Dataset
+    stream: TransitionStream
+    data: EvalData
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    elapsed: float = 0.0
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "cuda" and not torch.cuda.is_available():
+        raise SmspaceError(f"--device cuda: no CUDA GPU is usable here (torch {torch.__version__})")
+    if name not in ("cpu", "cuda") and not name.startswith("cuda:"):
+        raise SmspaceError(f"unknown --device {name!r} (cpu or cuda)")
+    return torch.device(name)
+
+
+def open_member(run: RunDir, cfg: TrainConfig, device: torch.device) -> Member:
+    ds = Dataset(cfg.dataset)
+    for path, shard in zip(ds.shard_paths(), ds.manifest.shards, strict=True):
+        if not path.exists() or path.stat().st_size != shard["bytes"]:
+            raise SmspaceError(f"shard {path} is missing or not the size its manifest records")
+    stream = TransitionStream(ds, cfg.batch_size, seed=cfg.seed, window=cfg.shuffle_window)
+    return Member(run, cfg, ds, stream, EvalData.load(ds, cfg.eval_transitions, device))
+
+
+def resume_members(learner: Learner, members: list[Member], device: torch.device) -> int:
+    """Load every run's checkpoint; all must be at the same step, which is returned."""
+    steps = set()
+    for r, m in enumerate(members):
+        ckpt = m.run.load_checkpoint(str(device))
+        learner.load(r, ckpt)
+        m.stream.load_state_dict(ckpt["stream"])
+        step = int(ckpt["step"])
+        m.elapsed = float(ckpt["elapsed_s"])
+        m.rows = [row for row in m.run.metrics() if row["step"] <= step]
+        m.run.truncate_after(step)
+        steps.add(step)
+    if len(steps) != 1:
+        raise SmspaceError(f"runs trained together must be at one step; their checkpoints are at {sorted(steps)}")
+    return steps.pop()
+
+
+def train(learner: Learner, members: list[Member], step: int, progress: bool = True) -> None:
+    """Train every member from `step` (0, or where `resume_members` left them) to cfg.steps."""
+    cfg = members[0].cfg  # the schedule is shared: ensembles check that their runs agree on it
+    count = len(members)
+    device = members[0].data.m_regular.device
+
+    def record(step: int, train_loss: np.ndarray, wall: float) -> None:
+        losses, hs, preds = learner.evaluate()
+        lr = learning_rate(cfg, step)
+        for r, m in enumerate(members):
+            m.elapsed += wall / count
+            row = {
+                "step": step,
+                "lr": lr,
+                "train_loss": float(train_loss[r]),
+                **scores_row(hs[r], m.data.p_regular, float(losses[r])),
+                "elapsed_s": m.elapsed,
+            }
+            state = {**learner.state_of(r, lr), "stream": m.stream.state_dict(), "step": step, "elapsed_s": m.elapsed}
+            write_evaluation(m.run, m.rows, row, hs[r], m.data, preds[r], state)
+
+    def diverged(at: int, losses: np.ndarray) -> TrainingFailed:
+        bad = ", ".join(members[r].run.path.name for r in np.flatnonzero(~np.isfinite(losses)))
+        last = members[0].rows[-1]["step"] if members[0].rows else 0
+        return TrainingFailed(
+            f"loss became NaN or inf at step {at} in {bad}; stopped, the checkpoint of step {last} is kept"
+        )
+
+    if step == 0:
+        record(0, np.full(count, math.nan), 0.0)
+    batches = [iter(DataLoader(m.stream, batch_size=None, num_workers=m.cfg.loader_workers)) for m in members]
+    check_each_step = device.type == "cpu"  # .item() is free on a CPU, a sync on a GPU
+    loss_sum = torch.zeros(count, dtype=torch.float32, device=device)
+    loss_count = 0
+    desc = "training" if count == 1 else f"ensemble of {count}"
+    bar = tqdm(
+        total=cfg.steps, initial=step, unit="step", disable=None if progress else True, file=sys.stderr, desc=desc
+    )
+    try:
+        t0 = time.perf_counter()
+        while step < cfg.steps:
+            learner.set_lr(learning_rate(cfg, step))
+            losses = learner.train_step([next(b) for b in batches])
+            if check_each_step and not bool(torch.isfinite(losses).all()):
+                raise diverged(step, losses.numpy())
+            step += 1
+            for m in members:
+                m.stream.batches_consumed = step
+            loss_sum += losses
+            loss_count += 1
+            bar.update()
+            if step % cfg.eval_every == 0 or step == cfg.steps:
+                train_loss = loss_sum.double().cpu().numpy() / loss_count
+                if not np.isfinite(train_loss).all():
+                    raise diverged(step, train_loss)
+                record(step, train_loss, time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                loss_sum.zero_()
+                loss_count = 0
+                if count == 1:
+                    row = members[0].rows[-1]
+                    bar.set_postfix(
+                        loss=f"{row['eval_loss']:.4g}", D_topo=f"{row['d_topo']:.3g}", D_metric=f"{row['d_metric']:.3g}"
+                    )
+    except SmspaceError as e:
+        _set_status(members, "failed", str(e))
+        raise
+    except KeyboardInterrupt:
+        _set_status(members, "interrupted", "interrupted; resume with --resume")
+        raise
+    finally:
+        bar.close()
+    for m in members:
+        m.run.set_status("finished", step)
+
+
+def _set_status(members: list[Member], state: str, message: str) -> None:
+    for m in members:
+        m.run.set_status(state, m.rows[-1]["step"] if m.rows else 0, message)
