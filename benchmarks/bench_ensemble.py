@@ -43,7 +43,7 @@ def main() -> None:
     peak = matmul_flops()
     r, ns, b = args.runs, args.sensors, 100
 
-    single, opt1 = build(TrainConfig(dataset="bench"), 3, ns, torch.device("cpu"))
+    single, opt1 = build(TrainConfig(dataset="bench", encoder_layers=[150, 100, 50]), 3, ns, torch.device("cpu"))
     x1 = [torch.rand(b, k) * 2 - 1 for k in (3, ns, 3, ns)]
 
     def single_step() -> None:

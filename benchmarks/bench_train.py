@@ -42,7 +42,9 @@ def step_flops(model: torch.nn.Module, batch: int) -> float:
 
 
 def model_steps_per_s(n_sensor: int, steps: int, batch: int = 100) -> tuple[float, float]:
-    model, opt = build(TrainConfig(dataset="bench", batch_size=batch), 3, n_sensor, torch.device("cpu"))
+    model, opt = build(
+        TrainConfig(dataset="bench", batch_size=batch, encoder_layers=[150, 100, 50]), 3, n_sensor, torch.device("cpu")
+    )
     data = [torch.rand(batch, k) * 2 - 1 for k in (3, n_sensor, 3, n_sensor)]
     best = float("inf")
     for _ in range(3):

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from common.rerun_output import ViewOutput
 from datagen.generate import generate
+from datagen.setups import get_setup
 from datagen.view import view_dataset
 from lake.dataset import Dataset
 
@@ -27,7 +28,7 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         if args.dataset is None:
-            shard = 32768 if args.setup.startswith("grid") else 8192
+            shard = get_setup(args.setup).default_shard_size
             generate(Path(tmp), args.setup, ["MME"], [0], args.transitions, shard, workers=args.workers)
             ds = Dataset(Path(tmp) / f"{args.setup}-seed0-MME")
         else:

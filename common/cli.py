@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import json
 import os
 import sys
 from collections.abc import Callable
@@ -46,3 +47,14 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def echo_listing(rows: list[dict], as_json: bool, header: str, line: Callable[[dict], str]) -> None:
+    """`ls` output: one JSON object per row, or a header and one formatted line per row."""
+    if as_json:
+        for row in rows:
+            click.echo(json.dumps(row))
+        return
+    click.echo(header)
+    for row in rows:
+        click.echo(line(row))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from common.cli import LAKE_OPTION, default_workers, friendly_errors
+from common.cli import LAKE_OPTION, default_workers, echo_listing, friendly_errors
 from common.errors import SmspaceError
 from common.rerun_output import view_options
 from datagen.setups import SETUPS
@@ -66,17 +66,15 @@ def ls_(lake, as_json) -> None:
     lake = lake or default_lake()
     if lake.exists() and not lake.is_dir():
         raise SmspaceError(f"lake path {lake} is a file, not a folder")
-    rows = read_catalog(lake).to_pylist()
-    if as_json:
-        for row in rows:
-            click.echo(json.dumps(row))
-        return
-    click.echo(f"{'id':<28} {'setup':<6} {'mode':<4} {'seed':>5} {'transitions':>11} {'MB':>8}")
-    for r in rows:
-        click.echo(
+    echo_listing(
+        read_catalog(lake).to_pylist(),
+        as_json,
+        f"{'id':<28} {'setup':<6} {'mode':<4} {'seed':>5} {'transitions':>11} {'MB':>8}",
+        lambda r: (
             f"{r['id']:<28} {r['setup']:<6} {r['mode']:<4} {r['world_seed']:>5} {r['transitions']:>11} "
             f"{r['bytes'] / 1e6:>8.2f}"
-        )
+        ),
+    )
 
 
 @main.command()

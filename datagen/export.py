@@ -21,7 +21,7 @@ import pyarrow.parquet as pq
 from common.errors import SmspaceError
 from lake.atomic import atomic_writer
 from lake.dataset import Dataset
-from lake.transitions import Transitions
+from lake.transitions import COLUMNS, Transitions
 
 EPOCH_NS = 1_575_763_200 * 10**9  # 2019-12-08T00:00:00Z, NeurIPS 2019
 STEP_NS = 10**6
@@ -136,8 +136,8 @@ def _fixed(x: np.ndarray) -> pa.Array:
 
 def transitions_table(first: int, tr: Transitions) -> pa.Table:
     columns = {"index": pa.array(np.arange(first, first + len(tr), dtype=np.uint64))}
-    for name in Transitions.__dataclass_fields__:
-        columns[name] = _fixed(getattr(tr, name))
+    for name, column in tr.columns().items():
+        columns[name] = _fixed(column)
     return pa.table(columns)
 
 
@@ -174,5 +174,5 @@ def read_parquet_transitions(path: Path) -> tuple[np.ndarray, Transitions, dict]
         out = values.reshape(len(arr), width)
         return out.reshape(len(arr), *shape) if name in ("s_t", "s_t1") else out
 
-    tr = Transitions(**{f: col(f) for f in Transitions.__dataclass_fields__})
+    tr = Transitions(**{name: col(name) for name in COLUMNS})
     return table["index"].to_numpy(), tr, manifest

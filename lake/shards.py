@@ -156,8 +156,6 @@ class ShardReader:
                 f"shard {self.path} has schema {', '.join(sorted(names))}; "
                 f"this smspace reads schema version {schemas.SCHEMA_VERSION} ({schemas.PACKAGE})"
             )
-        # Batch start indices in file order, from the chunk index: no decompression needed.
-        self.batch_starts = [c.message_start_time for c in summary.chunk_indexes]
 
     def close(self) -> None:
         self._fh.close()

@@ -27,12 +27,14 @@ class Transitions:
         return len(self.m_t)
 
     def columns(self) -> dict[str, np.ndarray]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return {name: getattr(self, name) for name in COLUMNS}
 
     def __getitem__(self, rows: slice) -> Transitions:
         return Transitions(**{name: col[rows] for name, col in self.columns().items()})
 
     @classmethod
     def concat(cls, parts: Sequence[Transitions]) -> Transitions:
-        names = [f.name for f in fields(cls)]
-        return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in names})
+        return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in COLUMNS})
+
+
+COLUMNS: tuple[str, ...] = tuple(f.name for f in fields(Transitions))

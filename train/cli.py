@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from common.cli import LAKE_OPTION, friendly_errors
+from common.cli import LAKE_OPTION, echo_listing, friendly_errors
 from common.errors import SmspaceError
 from common.rerun_output import view_options
 
@@ -231,21 +231,18 @@ def ls_(runs, as_json) -> None:
     """List the runs under a folder."""
     from train.run_dir import CONFIG
 
-    summaries = [_run_summary(p.parent) for p in sorted(Path(runs).glob(f"*/{CONFIG}"))]
-    if as_json:
-        for s in summaries:
-            click.echo(json.dumps(s))
-        return
-    click.echo(f"{'run':<40} {'state':<11} {'step':>13} {'loss':>10} {'D_topo':>10} {'D_metric':>10}")
-    for s in summaries:
+    def fmt(v) -> str:
+        return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
 
-        def fmt(v):
-            return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
-
-        click.echo(
+    echo_listing(
+        [_run_summary(p.parent) for p in sorted(Path(runs).glob(f"*/{CONFIG}"))],
+        as_json,
+        f"{'run':<40} {'state':<11} {'step':>13} {'loss':>10} {'D_topo':>10} {'D_metric':>10}",
+        lambda s: (
             f"{Path(s['run']).name:<40} {s['state']:<11} {s['step']:>6}/{s['steps']:<6} "
             f"{fmt(s['eval_loss']):>10} {fmt(s['d_topo']):>10} {fmt(s['d_metric']):>10}"
-        )
+        ),
+    )
 
 
 @main.command()

@@ -77,29 +77,26 @@ def view_run(run: RunDir, output: ViewOutput) -> int:
         rec.log("run", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
         colours = position_colours(p)
         h3 = np.stack([np.pad(h[:, :3], ((0, 0), (0, max(0, 3 - h.shape[1])))) for h, _ in embeddings])
+        per_step = {"colors": np.tile(colours, (len(steps), 1))}  # one colour per point, every step
         rec.send_columns(
             "h",
             indexes=times,
-            columns=rr.Points3D.columns(
-                positions=h3.reshape(-1, 3), colors=np.tile(colours, (len(steps), 1))
-            ).partition([n] * len(steps)),
+            columns=rr.Points3D.columns(positions=h3.reshape(-1, 3), **per_step).partition([n] * len(steps)),
         )
         rec.log("projection/p", rr.Points2D(p, colors=(160, 160, 160), radii=0.05), static=True)
         h_hat = np.stack([affine_projection(h.astype(np.float64), p) for h, _ in embeddings])
         rec.send_columns(
             "projection/h_hat",
             indexes=times,
-            columns=rr.Points2D.columns(
-                positions=h_hat.reshape(-1, 2), colors=np.tile(colours, (len(steps), 1))
-            ).partition([n] * len(steps)),
+            columns=rr.Points2D.columns(positions=h_hat.reshape(-1, 2), **per_step).partition([n] * len(steps)),
         )
         strips = np.stack([np.stack([p, hh], axis=1) for hh in h_hat])  # (steps, n, 2, 2)
         rec.send_columns(
             "projection/lines",
             indexes=times,
-            columns=rr.LineStrips2D.columns(
-                strips=list(strips.reshape(-1, 2, 2)), colors=np.tile(colours, (len(steps), 1))
-            ).partition([n] * len(steps)),
+            columns=rr.LineStrips2D.columns(strips=list(strips.reshape(-1, 2, 2)), **per_step).partition(
+                [n] * len(steps)
+            ),
         )
         for key, path in (
             ("eval_loss", "curves/loss/eval"),

@@ -68,7 +68,6 @@ class GridWorld:
             v = (v - v.min(axis=0)) / (v.max(axis=0) - v.min(axis=0))
             self.motors = 2 * _six_motor_nonlinearities(v) - 1
             self.positions = np.trunc(4 * (u[:, :2] - 0.5))
-            self.mixing = mixing
 
     def sample_motors(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         idx = rng.integers(0, len(self.motors), n)
