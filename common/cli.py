@@ -24,7 +24,7 @@ LAKE_OPTION = click.option(
 def fail(message: str, code: int = 2) -> None:
     prog = click.get_current_context(silent=True)
     name = prog.find_root().info_name if prog else Path(sys.argv[0]).name
-    click.echo(f"{name}: error: {message}", err=True)
+    click.echo(f"{name}: error: {' '.join(message.split())}", err=True)  # one line, whatever the message held
     sys.exit(code)
 
 

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from mcap.exceptions import McapError
 from mcap.reader import SeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
@@ -142,9 +141,9 @@ class ShardReader:
         try:
             self._reader: SeekingReader = make_reader(self._fh, validate_crcs=validate_crcs)
             summary = self._reader.get_summary()
-        except (McapError, ValueError, EOFError, OSError) as e:
+        except Exception as e:  # whatever mcap, zstd or protobuf raise on bad bytes is corruption
             self._fh.close()
-            raise DatasetCorrupt(f"corrupt shard {self.path}: {e}") from e
+            raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
         if summary is None:
             self._fh.close()
             raise DatasetCorrupt(f"corrupt shard {self.path}: no summary (truncated?)")
@@ -171,8 +170,8 @@ class ShardReader:
             for record in self._reader.iter_metadata():
                 if record.name == SHARD_METADATA:
                     return dict(record.metadata)
-        except (McapError, ValueError, EOFError) as e:
-            raise DatasetCorrupt(f"corrupt shard {self.path}: {e}") from e
+        except Exception as e:
+            raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
         return {}
 
     def stats(self) -> dict[str, list[float]]:
@@ -184,8 +183,8 @@ class ShardReader:
                 log_time_order=False, starting_at=starting_at, ending_before=ending_before
             ):
                 yield message.data
-        except (McapError, ValueError, EOFError, OSError) as e:
-            raise DatasetCorrupt(f"corrupt shard {self.path}: {e}") from e
+        except Exception as e:
+            raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
 
     def blocks(self, starting_at: int | None = None, ending_before: int | None = None) -> Iterator[Block]:
         """Decoded batches in file order, optionally only those starting in [starting_at, ending_before)."""
@@ -193,7 +192,7 @@ class ShardReader:
             try:
                 yield decode_batch(data)
             except Exception as e:  # a message that does not parse is corruption, whatever protobuf says
-                raise DatasetCorrupt(f"corrupt shard {self.path}: undecodable batch ({e})") from e
+                raise DatasetCorrupt(f"corrupt shard {self.path}: undecodable batch ({_reason(e)})") from e
 
     def block_at(self, first_index: int) -> Block:
         for block in self.blocks(first_index, first_index + 1):
@@ -202,7 +201,16 @@ class ShardReader:
 
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
         for data in self._raw():
-            msg = schemas.RegularSampling.FromString(data)
-            m = np.array(msg.m, np.float32).reshape(msg.count, msg.motor_dim)
-            return m, np.array(msg.p, np.float32).reshape(msg.count, 2)
+            try:
+                msg = schemas.RegularSampling.FromString(data)
+                m = np.array(msg.m, np.float32).reshape(msg.count, msg.motor_dim)
+                return m, np.array(msg.p, np.float32).reshape(msg.count, 2)
+            except Exception as e:
+                raise DatasetCorrupt(f"corrupt regular sampling {self.path}: {_reason(e)}") from e
         raise DatasetCorrupt(f"corrupt regular sampling {self.path}: no message")
+
+
+def _reason(e: Exception) -> str:
+    """An exception as a short single line, whatever library raised it."""
+    text = " ".join(str(e).split()) or "unreadable"
+    return f"{type(e).__name__}: {text[:200]}"

@@ -18,7 +18,7 @@ from common.errors import SmspaceError
 from train.config import TrainConfig
 from train.evaluation import N_PREDICTIONS, EvalData
 from train.fit import build
-from train.loop import open_member, resolve_device, resume_members, train
+from train.loop import open_member, recorded_outcome, resolve_device, resume_members, train
 from train.run_dir import RunDir
 
 
@@ -174,24 +174,25 @@ def train_ensemble(runs: list[RunDir], resume: bool = False, threads: int = 1, p
     """Train runs together to their configured steps: from scratch, or (resume) from their checkpoints."""
     torch.set_num_threads(threads)
     device = resolve_device(runs[0].config.device)
-    members = [open_member(run, run.config, device) for run in runs]
-    for m in members:
-        if not m.cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
-            m.cfg = m.cfg.for_dataset(m.dataset.folder, m.dataset.manifest)
-    _check_compatible([m.cfg for m in members])
-    manifests = [m.dataset.manifest for m in members]
-    n_motor, shape = manifests[0].n_motor, manifests[0].sensor_shape
-    if any(mf.n_motor != n_motor or mf.sensor_shape != shape for mf in manifests):
-        raise SmspaceError("runs of one ensemble must have datasets of the same setup")
-    n_sensor = int(np.prod(shape))
-    cfg0 = members[0].cfg
-    net = EnsembleNet(len(runs), n_motor, n_sensor, cfg0.n_h, cfg0.encoder_layers, cfg0.predictor_layers).to(device)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg0.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
-    learner = EnsembleLearner(net, opt, [m.data for m in members])
-    if resume:
-        step = resume_members(learner, members, device)
-    else:
-        step = 0
-        for r, m in enumerate(members):
-            net.load_run(r, build(m.cfg, n_motor, n_sensor, device)[0].state_dict())  # the very init `fit` draws
-    train(learner, members, step, progress)
+    with recorded_outcome(runs):
+        members = [open_member(run, run.config, device) for run in runs]
+        for m in members:
+            if not m.cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
+                m.cfg = m.cfg.for_dataset(m.dataset.folder, m.dataset.manifest)
+        _check_compatible([m.cfg for m in members])
+        manifests = [m.dataset.manifest for m in members]
+        n_motor, shape = manifests[0].n_motor, manifests[0].sensor_shape
+        if any(mf.n_motor != n_motor or mf.sensor_shape != shape for mf in manifests):
+            raise SmspaceError("runs of one ensemble must have datasets of the same setup")
+        n_sensor = int(np.prod(shape))
+        cfg0 = members[0].cfg
+        net = EnsembleNet(len(runs), n_motor, n_sensor, cfg0.n_h, cfg0.encoder_layers, cfg0.predictor_layers).to(device)
+        opt = torch.optim.Adam(net.parameters(), lr=cfg0.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
+        learner = EnsembleLearner(net, opt, [m.data for m in members])
+        if resume:
+            step = resume_members(learner, members, device)
+        else:
+            step = 0
+            for r, m in enumerate(members):
+                net.load_run(r, build(m.cfg, n_motor, n_sensor, device)[0].state_dict())  # the very init `fit` draws
+        train(learner, members, step, progress)

@@ -15,7 +15,7 @@ import torch
 
 from train.config import TrainConfig
 from train.evaluation import N_PREDICTIONS, EvalData
-from train.loop import TrainingFailed, open_member, resolve_device, resume_members, train
+from train.loop import TrainingFailed, open_member, recorded_outcome, resolve_device, resume_members, train
 from train.model import SensorimotorNet, prediction_loss
 from train.run_dir import RunDir
 
@@ -70,12 +70,13 @@ def fit(cfg: TrainConfig, run: RunDir, resume: bool = False) -> dict[str, Any]:
     """Train (or resume) one run; returns its last metrics row."""
     torch.set_num_threads(cfg.threads)  # 2 cores: oversubscribed threads made steps 10-40x slower
     device = resolve_device(cfg.device)
-    member = open_member(run, cfg, device)
-    manifest = member.dataset.manifest
-    if not cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
-        cfg = member.cfg = cfg.for_dataset(member.dataset.folder, manifest)
-    model, optimizer = build(cfg, manifest.n_motor, int(np.prod(manifest.sensor_shape)), device)
-    learner = SingleLearner(model, optimizer, member.data)
-    step = resume_members(learner, [member], device) if resume else 0
-    train(learner, [member], step)
+    with recorded_outcome([run]):
+        member = open_member(run, cfg, device)
+        manifest = member.dataset.manifest
+        if not cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
+            cfg = member.cfg = cfg.for_dataset(member.dataset.folder, manifest)
+        model, optimizer = build(cfg, manifest.n_motor, int(np.prod(manifest.sensor_shape)), device)
+        learner = SingleLearner(model, optimizer, member.data)
+        step = resume_members(learner, [member], device) if resume else 0
+        train(learner, [member], step)
     return member.rows[-1]

@@ -11,7 +11,8 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -143,7 +144,7 @@ def train(learner: Learner, members: list[Member], step: int, progress: bool = T
         t0 = time.perf_counter()
         while step < cfg.steps:
             learner.set_lr(learning_rate(cfg, step))
-            losses = learner.train_step([next(b) for b in batches])
+            losses = learner.train_step([_next_batch(b) for b in batches])
             if check_each_step and not bool(torch.isfinite(losses).all()):
                 raise diverged(step, losses.numpy())
             step += 1
@@ -165,18 +166,38 @@ def train(learner: Learner, members: list[Member], step: int, progress: bool = T
                     bar.set_postfix(
                         loss=f"{row['eval_loss']:.4g}", D_topo=f"{row['d_topo']:.3g}", D_metric=f"{row['d_metric']:.3g}"
                     )
-    except SmspaceError as e:
-        _set_status(members, "failed", str(e))
-        raise
-    except KeyboardInterrupt:
-        _set_status(members, "interrupted", "interrupted; resume with --resume")
-        raise
     finally:
         bar.close()
     for m in members:
         m.run.set_status("finished", step)
 
 
-def _set_status(members: list[Member], state: str, message: str) -> None:
-    for m in members:
-        m.run.set_status(state, m.rows[-1]["step"] if m.rows else 0, message)
+def _next_batch(batches) -> tuple[torch.Tensor, ...]:
+    try:
+        return next(batches)
+    except SmspaceError as e:
+        # a DataLoader worker's error comes back with its traceback in the message: keep its own line
+        lines = [ln for ln in str(e).splitlines() if ln.strip()]
+        raise type(e)(lines[-1].split(": ", 1)[-1] if len(lines) > 1 else str(e)) from e
+
+
+@contextmanager
+def recorded_outcome(runs: list[RunDir]) -> Iterator[None]:
+    """Whatever stops training early — bad data, a NaN, Ctrl-C, a bug — is written in each run's
+    status, so that no run looks alive after its process is gone."""
+    try:
+        yield
+    except SmspaceError as e:
+        _mark(runs, "failed", str(e))
+        raise
+    except KeyboardInterrupt:
+        _mark(runs, "interrupted", "interrupted; resume with --resume")
+        raise
+    except Exception as e:
+        _mark(runs, "failed", f"{type(e).__name__}: {e}")
+        raise
+
+
+def _mark(runs: list[RunDir], state: str, message: str) -> None:
+    for run in runs:
+        run.set_status(state, run.status()["step"], " ".join(message.split()))

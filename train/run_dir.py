@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import io
 import json
+import pickle
+import re  # only for its exception type: checkpoints load with weights_only=True
 import shutil
 from pathlib import Path
 from typing import Any
@@ -56,6 +58,7 @@ def array_file(name: str, step: int) -> str:
 
 
 PREDICTED, TRUE = "s_t1_pred", "s_t1_true"
+EVALUATION_FILE = re.compile(r"(step|[a-z0-9_]+)-(?P<step>\d{7})\.(parquet|npy)")
 
 
 class RunDir:
@@ -146,8 +149,15 @@ class RunDir:
         return np.load(self.path / EMBEDDINGS / array_file(TRUE, 0), allow_pickle=False)
 
     def truncate_after(self, step: int) -> None:
-        for path in (self.path / EMBEDDINGS).glob("*-*.*"):
-            if int(path.stem.rsplit("-", 1)[1]) > step:
+        """Drop what evaluations after `step` wrote, and whatever killed writers left half-done."""
+        remove_partials(self.path)
+        folder = self.path / EMBEDDINGS
+        if not folder.is_dir():
+            return
+        remove_partials(folder)
+        for path in folder.iterdir():
+            match = EVALUATION_FILE.fullmatch(path.name)
+            if match and int(match["step"]) > step:
                 path.unlink()
 
     # -- checkpoints --------------------------------------------------------------------------
@@ -166,8 +176,13 @@ class RunDir:
             raise SmspaceError(f"{self.path} has no checkpoint to resume from")
         try:
             return torch.load(path, map_location=device, weights_only=True)
+        except pickle.UnpicklingError as e:  # weights_only refused an object: never load it another way
+            raise SmspaceError(
+                f"{path} is not a smspace checkpoint (it holds objects other than tensors and plain data); "
+                "it was not loaded"
+            ) from e
         except Exception as e:
-            raise SmspaceError(f"checkpoint {path} is unreadable: {e}") from e
+            raise SmspaceError(f"checkpoint {path} is unreadable ({type(e).__name__}); it was not loaded") from e
 
 
 def _fixed_list(x: np.ndarray) -> pa.FixedSizeListArray:
