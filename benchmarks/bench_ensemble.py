@@ -15,7 +15,7 @@ import time
 import torch
 from bench_train import matmul_flops, step_flops
 
-from train.config import TrainConfig
+from train.config import TrainConfig, default_encoder_layers
 from train.ensemble import EnsembleNet
 from train.fit import build
 from train.model import prediction_loss
@@ -43,7 +43,8 @@ def main() -> None:
     peak = matmul_flops()
     r, ns, b = args.runs, args.sensors, 100
 
-    single, opt1 = build(TrainConfig(dataset="bench", encoder_layers=[150, 100, 50]), 3, ns, torch.device("cpu"))
+    cfg = TrainConfig(dataset="bench", encoder_layers=list(default_encoder_layers("grid")))
+    single, opt1 = build(cfg, 3, ns, torch.device("cpu"))
     x1 = [torch.rand(b, k) * 2 - 1 for k in (3, ns, 3, ns)]
 
     def single_step() -> None:
@@ -52,7 +53,7 @@ def main() -> None:
         loss.backward()
         opt1.step()
 
-    net = EnsembleNet(r, 3, ns, 3, [150, 100, 50], [200, 150, 100])
+    net = EnsembleNet(r, 3, ns, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers)
     for i in range(r):
         net.load_run(i, single.state_dict())
     opt = torch.optim.Adam(net.parameters(), lr=1e-3, fused=True)

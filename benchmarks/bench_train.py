@@ -16,7 +16,7 @@ import torch
 
 from datagen.generate import generate
 from lake.dataset import Dataset
-from train.config import TrainConfig
+from train.config import TrainConfig, default_encoder_layers
 from train.fit import build
 from train.loader import TransitionStream
 from train.model import prediction_loss
@@ -43,7 +43,10 @@ def step_flops(model: torch.nn.Module, batch: int) -> float:
 
 def model_steps_per_s(n_sensor: int, steps: int, batch: int = 100) -> tuple[float, float]:
     model, opt = build(
-        TrainConfig(dataset="bench", batch_size=batch, encoder_layers=[150, 100, 50]), 3, n_sensor, torch.device("cpu")
+        TrainConfig(dataset="bench", batch_size=batch, encoder_layers=list(default_encoder_layers("grid"))),
+        3,
+        n_sensor,
+        torch.device("cpu"),
     )
     data = [torch.rand(batch, k) * 2 - 1 for k in (3, n_sensor, 3, n_sensor)]
     best = float("inf")
