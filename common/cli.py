@@ -58,3 +58,24 @@ def echo_listing(rows: list[dict], as_json: bool, header: str, line: Callable[[d
     click.echo(header)
     for row in rows:
         click.echo(line(row))
+
+
+class OneLineErrors(click.Group):
+    """A command group whose usage errors (unknown flag, value out of range) are one line on
+    stderr with exit code 2, like every other error of smspace, instead of click's three."""
+
+    def main(self, *args, **kwargs):  # type: ignore[override]
+        kwargs["standalone_mode"] = False
+        try:
+            code = super().main(*args, **kwargs)
+        except click.exceptions.NoArgsIsHelpError as e:  # a bare `smgen`: the help, as click prints it
+            click.echo(e.format_message(), err=True)
+            sys.exit(2)
+        except click.UsageError as e:
+            prog = kwargs.get("prog_name") or Path(sys.argv[0]).name
+            click.echo(f"{prog}: error: {' '.join(e.format_message().split())}", err=True)
+            sys.exit(2)
+        except click.Abort:
+            click.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(code if isinstance(code, int) else 0)

@@ -8,14 +8,15 @@ from pathlib import Path
 
 import click
 
-from common.cli import LAKE_OPTION, default_workers, echo_listing, friendly_errors
+from common.cli import LAKE_OPTION, OneLineErrors, default_workers, echo_listing, friendly_errors
 from common.errors import SmspaceError
 from common.rerun_output import view_options
 from datagen.setups import SETUPS
 from lake.dataset import default_lake
+from lake.manifest import SEED_MAX
 
 
-@click.group(name="smgen", context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(name="smgen", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="smspace")
 def main() -> None:
     """Sensorimotor datasets in an MCAP data lake."""
@@ -28,7 +29,7 @@ def main() -> None:
 @click.option("--mode", required=True, help="MEM, MM, MME, or all.")
 @click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
 @click.option("--worlds", type=click.IntRange(min=1), default=1, help="Number of worlds; seeds SEED, SEED+1, …")
-@click.option("--seed", type=click.IntRange(min=0), default=0, help="Seed of the first world.")
+@click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, help="Seed of the first world.")
 @LAKE_OPTION
 @click.option(
     "--workers",
@@ -45,6 +46,8 @@ def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_s
     from datagen.setups import MODES, check_mode, get_setup
 
     setup = get_setup(setup_name)
+    if seed + worlds - 1 > SEED_MAX:
+        raise SmspaceError(f"--seed {seed} with --worlds {worlds} passes the largest world seed, {SEED_MAX}")
     modes = list(MODES) if mode == "all" else [check_mode(mode)]
     n = setup.default_transitions if transitions is None else transitions
     shard_size = setup.default_shard_size if shard_size is None else shard_size
@@ -120,7 +123,7 @@ def validate(datasets, lake) -> None:
 @main.command()
 @click.argument("dataset", required=False)
 @click.option("--setup", "setup_name", default=None, help="Preview a world without a dataset (with --seed).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, show_default=True)
 @LAKE_OPTION
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder for the PNGs.")
 @click.option("--frames", "n_frames", type=click.IntRange(min=1, max=256), default=64, show_default=True)

@@ -10,6 +10,7 @@ import numpy as np
 
 from common.errors import SmspaceError
 from lake.manifest import MANIFEST, Manifest, load_manifest
+from lake.manifest_check import dataset_file
 from lake.shards import Block, ShardReader
 from lake.transitions import Transitions
 
@@ -44,8 +45,15 @@ class Dataset:
     def open(cls, ref: str | Path, lake: Path | None = None) -> Dataset:
         return cls(resolve_dataset(ref, lake))
 
+    def file(self, name: str) -> Path:
+        """A file of this dataset, confined to its folder and regular (docs/FORMAT.md)."""
+        try:
+            return dataset_file(self.folder, name)
+        except FileNotFoundError:
+            raise SmspaceError(f"missing file {self.folder / name} of dataset {self.manifest.dataset_id}") from None
+
     def shard_paths(self) -> list[Path]:
-        return [self.folder / s["file"] for s in self.manifest.shards]
+        return [self.file(s["file"]) for s in self.manifest.shards]
 
     def blocks(self) -> Iterator[Block]:
         for path in self.shard_paths():
@@ -66,5 +74,5 @@ class Dataset:
         return Transitions.concat(parts)[:limit]
 
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
-        with ShardReader(self.folder / self.manifest.regular_sampling["file"]) as reader:
+        with ShardReader(self.file(self.manifest.regular_sampling["file"])) as reader:
             return reader.regular_sampling()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import platform
+import re
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -18,6 +19,8 @@ MANIFEST = "manifest.json"
 GENERATION = "generation.json"  # present only while a generation is unfinished
 REGULAR_FILE = "regular.mcap"
 BATCH_SIZE = 1024
+SEED_MAX = 2**63 - 1  # a world seed is an int64 in the catalog
+SHARD_FILE = re.compile(r"shard-\d{5}\.mcap")
 
 
 @dataclass(frozen=True)
@@ -118,8 +121,13 @@ class Manifest:
 
 
 def load_manifest(folder: Path) -> Manifest:
+    """The manifest of a dataset folder, every field checked (types, names, hashes, statistics)."""
+    from lake.manifest_check import check_manifest
+
     path = folder / MANIFEST
     try:
+        if path.is_symlink() or (path.exists() and not path.is_file()):
+            raise DatasetCorrupt(f"corrupt manifest {path}: not a regular file")
         raw = json.loads(path.read_text())
     except FileNotFoundError:
         if (folder / GENERATION).exists():
@@ -127,12 +135,15 @@ def load_manifest(folder: Path) -> Manifest:
         raise SmspaceError(f"{folder} is not a dataset (no {MANIFEST})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DatasetCorrupt(f"corrupt manifest {path}: {e}") from e
+    if not isinstance(raw, dict):
+        raise DatasetCorrupt(f"corrupt manifest {path}: not a JSON object")
     version = raw.get("schema_version")
     if version != schemas.SCHEMA_VERSION:
         raise SmspaceError(
             f"dataset {folder} has schema version {version}; this smspace reads version {schemas.SCHEMA_VERSION}"
         )
-    try:
-        return Manifest(**raw)
-    except TypeError as e:
-        raise DatasetCorrupt(f"corrupt manifest {path}: {e}") from e
+    problem = check_manifest(raw)
+    if problem:
+        raise DatasetCorrupt(f"corrupt manifest {path}: {problem}")
+    known = {f for f in Manifest.__dataclass_fields__}
+    return Manifest(**{k: v for k, v in raw.items() if k in known})  # fields of later versions are ignored

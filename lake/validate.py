@@ -10,6 +10,7 @@ import schemas
 from common.errors import SmspaceError
 from lake.atomic import sha256_file
 from lake.manifest import load_manifest
+from lake.manifest_check import dataset_file
 from lake.shards import ShardReader
 
 
@@ -79,10 +80,14 @@ def validate_dataset(folder: Path) -> list[str]:
     mode_check = _ModeCheck(manifest.mode)
     expected_index = 0
     for shard in manifest.shards:
-        path = folder / shard["file"]
         where = f"{folder.name}/{shard['file']}"
-        if not path.exists():
+        try:
+            path = dataset_file(folder, shard["file"])
+        except FileNotFoundError:
             problems.append(f"{where}: missing")
+            continue
+        except SmspaceError as e:
+            problems.append(f"{where}: {e}")
             continue
         size = path.stat().st_size
         if size != shard["bytes"]:
@@ -124,10 +129,13 @@ def validate_dataset(folder: Path) -> list[str]:
 
 def _regular_problems(folder: Path, manifest) -> list[str]:
     reg = manifest.regular_sampling
-    path = folder / reg["file"]
     where = f"{folder.name}/{reg['file']}"
-    if not path.exists():
+    try:
+        path = dataset_file(folder, reg["file"])
+    except FileNotFoundError:
         return [f"{where}: missing"]
+    except SmspaceError as e:
+        return [f"{where}: {e}"]
     if sha256_file(path) != reg["sha256"]:
         return [f"{where}: sha256 differs from the manifest"]
     try:

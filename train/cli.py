@@ -12,9 +12,10 @@ from typing import TYPE_CHECKING
 
 import click
 
-from common.cli import LAKE_OPTION, echo_listing, friendly_errors
+from common.cli import LAKE_OPTION, OneLineErrors, echo_listing, friendly_errors
 from common.errors import SmspaceError
 from common.rerun_output import view_options
+from lake.manifest import SEED_MAX
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -52,8 +53,9 @@ def config_options(exclude: tuple[str, ...] = ()) -> Callable:
                 shown = f" [default: {','.join(map(str, default))}]" if default else ""
                 option = click.option(_flag_name(f), f.name, callback=int_list, default=None, help=help_text + shown)
             else:
-                low = f.metadata["min"]
-                kind = click.IntRange(min=low) if isinstance(default, int) and low is not None else type(default)
+                low, high = f.metadata["min"], f.metadata["max"]
+                bounded = low is not None or high is not None
+                kind = click.IntRange(low, high) if isinstance(default, int) and bounded else type(default)
                 option = click.option(
                     _flag_name(f), f.name, type=kind, default=default, show_default=True, help=help_text
                 )
@@ -71,7 +73,7 @@ def config_from_flags(flags: dict) -> TrainConfig:
     return TrainConfig(dataset="", **given)
 
 
-@click.group(name="smtrain", context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(name="smtrain", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="smspace")
 def main() -> None:
     """Train and inspect sensorimotor predictive networks."""
@@ -137,7 +139,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
 @click.option(
     "--seed",
     "first_world",
-    type=click.IntRange(min=0),
+    type=click.IntRange(0, SEED_MAX),
     default=0,
     show_default=True,
     help="First world seed; a run's seed is its world's.",

@@ -10,12 +10,16 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
+
 PAPER_PREDICTOR = (200, 150, 100)
 
 
-def flag(default: Any, help: str, name: str | None = None, minimum: float | None = None) -> Any:
+def flag(
+    default: Any, help: str, name: str | None = None, minimum: float | None = None, maximum: float | None = None
+) -> Any:
     """A config field that is also a command-line flag (`--field-name` unless `name` is given)."""
-    kwargs: dict[str, Any] = {"metadata": {"help": help, "flag": name, "min": minimum}}
+    kwargs: dict[str, Any] = {"metadata": {"help": help, "flag": name, "min": minimum, "max": maximum}}
     if isinstance(default, list):
         kwargs["default_factory"] = lambda: list(default)
     else:
@@ -41,7 +45,7 @@ class TrainConfig:
     lr_end: float = flag(1e-5, "Learning rate after the decay.")
     lr_decay_steps: int = flag(0, "Steps of the linear decay [0: 80% of --steps].", minimum=0)
     eval_every: int = flag(1000, "Steps between evaluations.", minimum=1)
-    seed: int = flag(0, "Seed of the initial weights and of the data order.", minimum=0)
+    seed: int = flag(0, "Seed of the initial weights and of the data order.", minimum=0, maximum=SEED_MAX)
     device: str = flag("cpu", "cpu or cuda.")
     threads: int = flag(1, "torch CPU threads.", minimum=1)
     loader_workers: int = flag(0, "DataLoader worker processes per run.", minimum=0)

@@ -79,8 +79,8 @@ def resolve_device(name: str) -> torch.device:
 def open_member(run: RunDir, cfg: TrainConfig, device: torch.device) -> Member:
     ds = Dataset(cfg.dataset)
     for path, shard in zip(ds.shard_paths(), ds.manifest.shards, strict=True):
-        if not path.exists() or path.stat().st_size != shard["bytes"]:
-            raise SmspaceError(f"shard {path} is missing or not the size its manifest records")
+        if path.stat().st_size != shard["bytes"]:
+            raise SmspaceError(f"shard {path} is not the size its manifest records")
     stream = TransitionStream(ds, cfg.batch_size, seed=cfg.seed, window=cfg.shuffle_window)
     return Member(run, cfg, ds, stream, EvalData.load(ds, cfg.eval_transitions, device))
 
