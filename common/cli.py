@@ -79,3 +79,8 @@ class OneLineErrors(click.Group):
             click.echo("Aborted!", err=True)
             sys.exit(1)
         sys.exit(code if isinstance(code, int) else 0)
+
+
+def display_name(name: str) -> str:
+    """A file name as printable text, whatever bytes it holds (names are not always UTF-8)."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "replace")

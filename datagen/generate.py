@@ -81,11 +81,17 @@ def write_one_shard(cfg: GenConfig, folder: Path, i: int) -> int:
     return hi - lo
 
 
-def _shard_is_good(path: Path, cfg: GenConfig) -> bool:
-    """A shard under its final name was renamed after a full write; check it belongs to cfg."""
+def _shard_is_good(path: Path, cfg: GenConfig, i: int) -> bool:
+    """Keep a shard found under its final name only if it belongs to cfg and reads back whole: every
+    chunk CRC checked and every batch decoded, so a shard damaged after it was written is redone."""
+    if path.is_symlink() or not path.is_file():
+        return False
+    lo, hi = cfg.shard_range(i)
     try:
         with ShardReader(path) as reader:
-            return reader.metadata().get("config_hash") == cfg.config_hash
+            if reader.metadata().get("config_hash") != cfg.config_hash:
+                return False
+            return sum(len(b.transitions) for b in reader.blocks()) == hi - lo
     except SmspaceError:
         return False
 
@@ -139,7 +145,7 @@ def plan_dataset(lake: Path, cfg: GenConfig, overwrite: bool) -> Plan:
     except OSError as e:
         raise SmspaceError(f"cannot write to {folder}: {e.strerror or e}") from e
     write_atomic(folder / GENERATION, json.dumps({"config": cfg.to_dict(), "config_hash": cfg.config_hash}).encode())
-    todo = [i for i in range(cfg.n_shards) if not _shard_is_good(folder / shard_name(i), cfg)]
+    todo = [i for i in range(cfg.n_shards) if not _shard_is_good(folder / shard_name(i), cfg, i)]
     return Plan(cfg, folder, todo, complete=False)
 
 

@@ -92,6 +92,11 @@ class Manifest:
     software: dict[str, str] = field(default_factory=software_versions)
 
     @property
+    def shards_digest(self) -> str:
+        """One hash of the whole dataset's content, from the shards' recorded sha256s."""
+        return hashlib.sha256("".join(s["sha256"] for s in self.shards).encode()).hexdigest()
+
+    @property
     def total_bytes(self) -> int:
         return sum(s["bytes"] for s in self.shards) + self.regular_sampling["bytes"]
 

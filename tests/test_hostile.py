@@ -134,3 +134,158 @@ def test_a_checkpoint_holding_objects_is_refused_in_one_line(tmp_path):
     assert result.exit_code == 2 and len(lines) == 1, result.output
     assert "not a smspace checkpoint" in lines[0] and "not loaded" in lines[0]
     assert "weights_only" not in result.output
+
+
+# -- numeric options the formats cannot hold are refused before anything is written -------------
+def test_a_seed_beyond_int64_is_refused_and_the_lake_stays_usable(tmp_path):
+    lake = tmp_path / "lake"
+    for args in (["--seed", 2**63], ["--seed", 2**63 - 1, "--worlds", 2]):
+        result = smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 100, *args, "--lake", lake)
+        lines = result.output.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and "seed" in lines[0], result.output
+        assert not lake.exists()
+    top = 2**63 - 1
+    args = ["generate", "--setup", "grid", "--mode", "MM", "--transitions", 100, "--seed", top, "--lake", lake]
+    assert smgen(*args).exit_code == 0
+    assert smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 100, "--lake", lake).exit_code == 0
+    listed = smgen("ls", "--lake", lake, "--json").output.splitlines()
+    assert len(listed) == 2 and any(f"seed{top}" in line for line in listed)
+
+
+# -- what a resume keeps is verified -----------------------------------------------------------------
+def test_a_resumed_generation_redoes_a_shard_damaged_meanwhile(tmp_path):
+    lake = tmp_path / "lake"
+    args = ["generate", "--setup", "grid", "--mode", "MEM", "--transitions", 5000, "--shard-size", 1000]
+    assert smgen(*args, "--lake", tmp_path / "clean").exit_code == 0
+    assert smgen(*args, "--lake", lake).exit_code == 0
+    folder = lake / "grid-seed0-MEM"
+    (folder / "manifest.json").unlink()  # as if the generation had not finished
+    (folder / "generation.json").write_text(
+        (tmp_path / "clean" / "grid-seed0-MEM" / "manifest.json").read_text()  # any JSON with the right hash
+    )
+    rng = np.random.default_rng(3)
+    for name in ("shard-00001.mcap", "shard-00003.mcap"):
+        flip(folder / name, rng)
+    assert smgen(*args, "--lake", lake).exit_code == 0
+    for shard in sorted((tmp_path / "clean" / "grid-seed0-MEM").glob("shard-*")):
+        assert (folder / shard.name).read_bytes() == shard.read_bytes(), shard.name
+    assert smgen("validate", "--lake", lake, "grid-seed0-MEM").exit_code == 0
+
+
+def test_fit_resume_refuses_a_regenerated_dataset(tmp_path):
+    lake, out = tmp_path / "lake", tmp_path / "run"
+    gen = ["generate", "--setup", "grid", "--mode", "MM", "--transitions", 3000, "--lake", lake]
+    assert smgen(*gen).exit_code == 0
+    assert (
+        smtrain("fit", "grid-seed0-MM", "--lake", lake, "--out", out, "--steps", 20, "--eval-every", 10).exit_code == 0
+    )
+    assert smgen(*gen[:-2], "--shard-size", 1000, "--lake", lake, "--overwrite").exit_code == 0  # same id, new bytes
+    result = smtrain("fit", "--resume", out, "--steps", 40)
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1 and "is not the one" in lines[0], result.output
+    assert RunDir.open(out).checkpoint_step() == 20
+
+
+# -- a manifest names nothing outside its folder and every field is checked ---------------------------
+def _edit_manifest(folder: Path, edit) -> None:
+    import json
+
+    raw = json.loads((folder / "manifest.json").read_text())
+    edit(raw)
+    (folder / "manifest.json").write_text(json.dumps(raw))
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        (lambda m: m["shards"][0].update(file="/etc/passwd"), "file name"),
+        (lambda m: m["shards"][0].update(file="../grid-seed0-MM/shard-00000.mcap"), "file name"),
+        (lambda m: m["regular_sampling"].update(file="/dev/zero"), "file name"),
+        (lambda m: m["normalisation"]["m_min"].__setitem__(0, float("nan")), "finite"),
+        (
+            lambda m: m["normalisation"].update(s_min=m["normalisation"]["s_max"], s_max=m["normalisation"]["s_min"]),
+            "exceeds",
+        ),
+        (lambda m: m.update(mode="MXM"), "mode"),
+        (lambda m: m.update(config_hash="0" * 16), "config_hash"),
+        (lambda m: m.update(dataset_id="grid-seed9-MEM"), "dataset_id"),
+        (lambda m: m.update(transitions="4096"), "transitions"),
+        (lambda m: m.update(shards={"file": "x"}), "shards"),
+        (lambda m: m.update(n_motor=[3]), "n_motor"),
+        (lambda m: m.pop("normalisation"), "normalisation"),
+    ],
+)
+def test_hostile_manifests_are_named_in_one_line_everywhere(samples_copy, tmp_path, edit, needle):
+    folder = samples_copy / "grid-seed0-MEM"
+    _edit_manifest(folder, edit)
+    result = smgen("validate", "--lake", samples_copy, "grid-seed0-MEM")
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 1 and len(lines) == 1 and needle in lines[0] and "manifest" in lines[0], result.output
+    for args in (
+        ["info", "grid-seed0-MEM"],
+        ["export", "grid-seed0-MEM", "--format", "parquet", "--out", tmp_path / "x"],
+    ):
+        out = smgen(*args, "--lake", samples_copy)
+        assert out.exit_code == 2 and len(out.output.strip().splitlines()) == 1 and needle in out.output, out.output
+    out = smtrain("fit", "grid-seed0-MEM", "--lake", samples_copy, "--out", tmp_path / "run", "--steps", 10)
+    assert out.exit_code == 2 and needle in out.output and not (tmp_path / "run").exists()
+
+
+def test_links_and_special_files_in_a_dataset_are_refused_without_blocking(samples_copy):
+    import os
+
+    folder = samples_copy / "grid-seed0-MM"
+    (folder / "shard-00001.mcap").unlink()
+    os.mkfifo(folder / "shard-00001.mcap")  # reading a FIFO would block forever
+    (folder / "regular.mcap").unlink()
+    (folder / "regular.mcap").symlink_to(SAMPLES / "grid-seed0-MM" / "regular.mcap")
+    result = smgen("validate", "--lake", samples_copy, "grid-seed0-MM")
+    assert result.exit_code == 1
+    assert "grid-seed0-MM/shard-00001.mcap: " in result.output and "regular file" in result.output
+    assert "grid-seed0-MM/regular.mcap: " in result.output
+
+
+def test_a_folder_holding_only_a_manifest_does_not_validate(samples_copy):
+    folder = samples_copy / "grid-seed0-MME"
+    for path in folder.glob("*.mcap"):
+        path.unlink()
+    result = smgen("validate", "--lake", samples_copy, "grid-seed0-MME")
+    assert result.exit_code == 1 and result.output.count("missing") == 3
+
+
+# -- listing survives one bad entry ------------------------------------------------------------------
+def test_smtrain_ls_lists_around_broken_runs_and_shows_dead_runs_as_stale(tmp_path):
+    import json
+    import os
+
+    runs = tmp_path / "runs"
+    for name in ("good", "bad-config", "bad-status", "bad-metrics", "dead", "caf\udce9"):
+        out = runs / name
+        args = ["fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", out, "--steps", 10, "--eval-every", 10]
+        assert smtrain(*args).exit_code == 0
+    (runs / "bad-config" / "config.json").write_text("{not json")
+    (runs / "bad-status" / "status.json").write_bytes(b"\xff\xfe")
+    (runs / "bad-metrics" / "metrics.parquet").write_bytes(b"PAR1 nonsense")
+    dead = {"state": "running", "step": 10, "message": "", "pid": 2**22 + 12345, "host": os.uname().nodename}
+    (runs / "dead" / "status.json").write_text(json.dumps(dead))
+    result = smtrain("ls", "--runs", runs)
+    assert result.exit_code == 0, result.output
+    states = {line.split()[0]: line.split()[1] for line in result.output.splitlines()[1:]}
+    assert states == {
+        "good": "finished",
+        "bad-config": "broken",
+        "bad-status": "broken",
+        "bad-metrics": "broken",
+        "dead": "stale",
+        "caf\ufffd": "finished",
+    }
+    assert len(smtrain("ls", "--runs", runs, "--json").output.splitlines()) == 6
+
+
+def test_a_corrupt_catalog_is_rebuilt_from_the_manifests(samples_copy):
+    (samples_copy / "catalog.parquet").write_bytes(b"garbage")
+    result = smgen("ls", "--lake", samples_copy, "--json")
+    assert result.exit_code == 0 and len(result.output.splitlines()) == 6
+    _edit_manifest(samples_copy / "grid-seed0-MM", lambda m: m.update(config_hash="x"))
+    (samples_copy / "catalog.parquet").write_bytes(b"garbage")
+    assert len(smgen("ls", "--lake", samples_copy, "--json").output.splitlines()) == 5

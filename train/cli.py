@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from common.cli import LAKE_OPTION, OneLineErrors, echo_listing, friendly_errors
+from common.cli import LAKE_OPTION, OneLineErrors, display_name, echo_listing, friendly_errors
 from common.errors import SmspaceError
 from common.rerun_output import view_options
 from lake.manifest import SEED_MAX
@@ -128,7 +128,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
         resolve_device(cfg.device)
         run = RunDir.create(out or RUNS / cfg.run_name, cfg, overwrite)
         result = run_fit(cfg, run)
-    click.echo(f"run: {run.path}")
+    click.echo(f"run: {display_name(str(run.path))}")
     click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
 
 
@@ -186,7 +186,7 @@ def sweep(
         overwrite,
     )
     for run in runs:
-        click.echo(str(run.path))
+        click.echo(display_name(str(run.path)))
 
 
 @main.command()
@@ -199,6 +199,15 @@ def report(runs, out) -> None:
 
     for path in run_report(list(runs), out):
         click.echo(str(path))
+
+
+def _listed(path: Path) -> dict:
+    """A run's summary, or a "broken" row saying why it cannot be read: one bad run hides no other."""
+    try:
+        return _run_summary(path)
+    except SmspaceError as e:
+        empty = dict.fromkeys(("dataset_id", "n_h", "seed", "eval_loss", "d_topo", "d_metric", "elapsed_s"))
+        return {"run": display_name(str(path)), "state": "broken", "message": str(e), "step": 0, "steps": 0} | empty
 
 
 def _run_summary(path: Path) -> dict:
@@ -237,11 +246,11 @@ def ls_(runs, as_json) -> None:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
 
     echo_listing(
-        [_run_summary(p.parent) for p in sorted(Path(runs).glob(f"*/{CONFIG}"))],
+        [_listed(p.parent) for p in sorted(Path(runs).glob(f"*/{CONFIG}"))],
         as_json,
         f"{'run':<40} {'state':<11} {'step':>13} {'loss':>10} {'D_topo':>10} {'D_metric':>10}",
         lambda s: (
-            f"{Path(s['run']).name:<40} {s['state']:<11} {s['step']:>6}/{s['steps']:<6} "
+            f"{display_name(Path(s['run']).name):<40} {s['state']:<11} {s['step']:>6}/{s['steps']:<6} "
             f"{fmt(s['eval_loss']):>10} {fmt(s['d_topo']):>10} {fmt(s['d_metric']):>10}"
         ),
     )

@@ -33,6 +33,7 @@ class TrainConfig:
     dataset: str  # the dataset folder, resolved
     dataset_id: str = ""
     dataset_config_hash: str = ""
+    dataset_shards_sha256: str = ""  # sha256 over the shards' recorded sha256s: a regenerated dataset differs
     setup: str = ""
     mode: str = ""
     # the flags
@@ -78,6 +79,7 @@ class TrainConfig:
             dataset=str(Path(folder).resolve()),
             dataset_id=manifest.dataset_id,
             dataset_config_hash=manifest.config_hash,
+            dataset_shards_sha256=manifest.shards_digest,
             setup=manifest.setup,
             mode=manifest.mode,
             encoder_layers=list(encoder),

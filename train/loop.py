@@ -78,6 +78,14 @@ def resolve_device(name: str) -> torch.device:
 
 def open_member(run: RunDir, cfg: TrainConfig, device: torch.device) -> Member:
     ds = Dataset(cfg.dataset)
+    recorded = (cfg.dataset_config_hash, cfg.dataset_shards_sha256)
+    found = (ds.manifest.config_hash, ds.manifest.shards_digest)
+    for name, was, now in zip(("config hash", "shard hashes"), recorded, found, strict=True):
+        if was and was != now:  # empty: a config written by hand or by smspace 0.1
+            raise SmspaceError(
+                f"dataset {ds.folder} is not the one {run.path} was trained on (its {name} changed); "
+                "train a new run instead"
+            )
     for path, shard in zip(ds.shard_paths(), ds.manifest.shards, strict=True):
         if path.stat().st_size != shard["bytes"]:
             raise SmspaceError(f"shard {path} is not the size its manifest records")

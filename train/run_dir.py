@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import pickle
 import re  # only for its exception type: checkpoints load with weights_only=True
 import shutil
+import socket
 from pathlib import Path
 from typing import Any
 
@@ -102,22 +104,41 @@ class RunDir:
 
     @property
     def config(self) -> TrainConfig:
-        return TrainConfig.from_dict(json.loads((self.path / CONFIG).read_text()))
+        try:
+            return TrainConfig.from_dict(json.loads((self.path / CONFIG).read_text()))
+        except (json.JSONDecodeError, UnicodeDecodeError, TypeError, AttributeError) as e:
+            raise SmspaceError(f"{self.path / CONFIG} is unreadable ({type(e).__name__})") from e
 
     # -- status ---------------------------------------------------------------------------
     def set_status(self, state: str, step: int, message: str = "") -> None:
-        write_atomic(self.path / STATUS, json.dumps({"state": state, "step": step, "message": message}).encode())
+        """The run's state; a running one records who runs it, so that `ls` can tell when it died."""
+        status = {"state": state, "step": step, "message": message}
+        if state == "running":
+            status |= {"pid": os.getpid(), "host": socket.gethostname()}
+        write_atomic(self.path / STATUS, json.dumps(status).encode())
 
     def status(self) -> dict[str, Any]:
+        """The recorded state; "running" becomes "stale" when its process is gone from this host."""
         try:
-            return json.loads((self.path / STATUS).read_text())
+            status = json.loads((self.path / STATUS).read_text())
         except FileNotFoundError:
             return {"state": "created", "step": 0, "message": ""}
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise SmspaceError(f"{self.path / STATUS} is unreadable ({type(e).__name__})") from e
+        mine = status.get("host") == socket.gethostname()
+        if status.get("state") == "running" and mine and not _alive(status.get("pid")):
+            status |= {"state": "stale", "message": "its process is gone; resume with --resume"}
+        return status
 
     # -- metrics and embeddings -------------------------------------------------------------
     def metrics(self) -> list[dict[str, Any]]:
         path = self.path / METRICS
-        return pq.read_table(path).to_pylist() if path.exists() else []
+        if not path.exists():
+            return []
+        try:
+            return _read_parquet(path).to_pylist()
+        except (OSError, pa.ArrowException) as e:
+            raise SmspaceError(f"{path} is unreadable ({type(e).__name__})") from e
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
         write_atomic(self.path / METRICS, _parquet_bytes(pa.Table.from_pylist(rows, schema=METRICS_SCHEMA)))
@@ -137,7 +158,7 @@ class RunDir:
             write_atomic(folder / array_file(name, step), _npy_bytes(value))
 
     def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
-        table = pq.read_table(self.path / EMBEDDINGS / embedding_file(step))
+        table = _read_parquet(self.path / EMBEDDINGS / embedding_file(step))
         return _from_fixed_list(table["h"]), _from_fixed_list(table["p"])
 
     def predictions(self, step: int) -> np.ndarray:
@@ -183,6 +204,23 @@ class RunDir:
             ) from e
         except Exception as e:
             raise SmspaceError(f"checkpoint {path} is unreadable ({type(e).__name__}); it was not loaded") from e
+
+
+def _read_parquet(path: Path) -> pa.Table:
+    with open(path, "rb") as fh:  # pyarrow cannot open a path that is not valid UTF-8; Python can
+        return pq.read_table(fh)
+
+
+def _alive(pid: Any) -> bool:
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        return True
+    return True
 
 
 def _fixed_list(x: np.ndarray) -> pa.FixedSizeListArray:
