@@ -84,3 +84,17 @@ class OneLineErrors(click.Group):
 def display_name(name: str) -> str:
     """A file name as printable text, whatever bytes it holds (names are not always UTF-8)."""
     return name.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
+def check_output(out: Path, overwrite: bool, inputs: list[Path]) -> None:
+    """An output file may replace an existing file only with --overwrite, and never lands inside
+    what the command reads (a dataset or run folder), --overwrite or not."""
+    out = Path(out)
+    if out.is_dir():
+        raise SmspaceError(f"{out} is a folder; give a file name")
+    resolved = out.resolve()
+    for folder in inputs:
+        if resolved.is_relative_to(Path(folder).resolve()):
+            raise SmspaceError(f"{out} is inside {folder}, which this command reads; write it elsewhere")
+    if out.exists() and not overwrite:
+        raise SmspaceError(f"{out} exists; pass --overwrite to replace it")

@@ -20,7 +20,10 @@ from pathlib import Path
 
 import click
 
+from common.cli import check_output
 from common.errors import SmspaceError
+
+PARTIAL_SUFFIX = ".partial"  # the suffix of every temporary file smspace writes
 
 
 @dataclass(frozen=True)
@@ -29,6 +32,7 @@ class ViewOutput:
     web: bool = False
     web_port: int = 9090
     grpc_port: int = 9876
+    overwrite: bool = False
 
 
 def view_options(fn: Callable) -> Callable:
@@ -38,9 +42,10 @@ def view_options(fn: Callable) -> Callable:
     @click.option("--web", is_flag=True, help="Serve a web viewer on 127.0.0.1 (Ctrl-C stops it).")
     @click.option("--web-port", type=click.IntRange(1, 65535), default=9090, show_default=True)
     @click.option("--grpc-port", type=click.IntRange(1, 65535), default=9876, show_default=True)
+    @click.option("--overwrite", is_flag=True, help="Replace the --save file if it exists.")
     @functools.wraps(fn)
-    def wrapper(*args, save, web, web_port, grpc_port, **kwargs):
-        return fn(*args, output=ViewOutput(save, web, web_port, grpc_port), **kwargs)
+    def wrapper(*args, save, web, web_port, grpc_port, overwrite, **kwargs):
+        return fn(*args, output=ViewOutput(save, web, web_port, grpc_port, overwrite), **kwargs)
 
     return wrapper
 
@@ -55,21 +60,28 @@ def rerun_binary() -> Path:
 
 
 @contextmanager
-def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput) -> Iterator:
-    """A RecordingStream whose data ends up where the flags say; yields it for logging."""
+def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput, source: Path) -> Iterator:
+    """A RecordingStream whose data ends up where the flags say; yields it for logging.
+
+    An .rrd is written under a temporary name and renamed only once complete, so a kill or a full
+    disk leaves no truncated recording; it never replaces a file without --overwrite, nor lands
+    inside `source` (the dataset or run folder being shown)."""
     import rerun as rr
 
     save, web = output.save, output.web
     if save is not None and web:
         raise SmspaceError("choose one of --save and --web")
-    rec = rr.RecordingStream(app_id, recording_id=recording_id)
-    tmp = None
+    tmp = partial = None
     if save is not None:
+        check_output(save, output.overwrite, [source])
         try:
             save.parent.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise SmspaceError(f"cannot write {save}: {e.strerror or e}") from e
-        rec.save(save, default_blueprint=blueprint)
+    rec = rr.RecordingStream(app_id, recording_id=recording_id)
+    if save is not None:
+        partial = save.with_name(f"{save.name}.{os.getpid()}{PARTIAL_SUFFIX}")
+        rec.save(partial, default_blueprint=blueprint)
     elif web:
         tmp = tempfile.NamedTemporaryFile(prefix="smspace-", suffix=".rrd", delete=False)  # noqa: SIM115
         tmp.close()
@@ -81,14 +93,30 @@ def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput) -> 
             raise SmspaceError(f"could not start a rerun viewer ({e}); use --save FILE.rrd or --web") from e
     try:
         yield rec
-    finally:
-        rec.flush()
+    except BaseException:
         rec.disconnect()
+        if partial is not None:
+            partial.unlink(missing_ok=True)
+        raise
+    rec.flush()
+    rec.disconnect()
+    if partial is not None:
+        _commit(partial, save)
     if tmp is not None:
         try:
             serve_web(Path(tmp.name), output.web_port, output.grpc_port)
         finally:
             Path(tmp.name).unlink(missing_ok=True)
+
+
+def _commit(partial: Path, final: Path) -> None:
+    try:
+        with open(partial, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(partial, final)
+    except OSError as e:
+        partial.unlink(missing_ok=True)
+        raise SmspaceError(f"cannot write {final}: {e.strerror or e}") from e
 
 
 def serve_web(rrd: Path, web_port: int = 9090, grpc_port: int = 9876) -> None:

@@ -166,13 +166,14 @@ def view(dataset, lake, limit, output) -> None:
 @click.option("--format", "fmt", type=click.Choice(["foxglove", "parquet"]), required=True)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The file to write.")
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="Only the first N transitions.")
+@click.option("--overwrite", is_flag=True, help="Replace --out if it exists.")
 @friendly_errors
-def export(dataset, lake, fmt, out, limit) -> None:
+def export(dataset, lake, fmt, out, limit, overwrite) -> None:
     """Export a dataset: per-transition MCAP with Foxglove schemas, or Parquet."""
     from datagen.export import export as run
     from lake.dataset import Dataset
 
-    n = run(Dataset.open(dataset, lake), fmt, out, limit)
+    n = run(Dataset.open(dataset, lake), fmt, out, limit, overwrite)
     click.echo(f"{out}\t{n} transitions")
 
 

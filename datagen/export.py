@@ -18,6 +18,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from common.cli import check_output
 from common.errors import SmspaceError
 from lake.atomic import atomic_writer
 from lake.dataset import Dataset
@@ -41,11 +42,11 @@ def _blocks(ds: Dataset, limit: int | None) -> Iterator[tuple[int, Transitions]]
             return
 
 
-def export(ds: Dataset, fmt: str, out: Path, limit: int | None = None) -> int:
+def export(ds: Dataset, fmt: str, out: Path, limit: int | None = None, overwrite: bool = False) -> int:
+    """Write the export under a temporary name, renamed only when complete (never onto an input)."""
     if fmt not in FORMATS:
         raise SmspaceError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
-    if out.exists() and out.is_dir():
-        raise SmspaceError(f"--out {out} is a folder; give a file name")
+    check_output(out, overwrite, [ds.folder])
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:

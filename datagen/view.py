@@ -67,7 +67,8 @@ def view_dataset(ds: Dataset, limit: int | None, output: ViewOutput) -> int:
     n = len(tr)
     images = tr.s_t.dtype == np.uint8
     setup = get_setup(ds.manifest.setup)
-    with recording("smspace", ds.manifest.dataset_id, blueprint(images, setup.view_world is not None), output) as rec:
+    layout = blueprint(images, setup.view_world is not None)
+    with recording("smspace", ds.manifest.dataset_id, layout, output, ds.folder) as rec:
         times = [rr.TimeColumn("transition", sequence=np.arange(n))]
         rec.log("dataset", rr.TextDocument(metadata_markdown(ds), media_type=rr.MediaType.MARKDOWN), static=True)
         for name in ("s_t", "s_t1"):

@@ -289,3 +289,41 @@ def test_a_corrupt_catalog_is_rebuilt_from_the_manifests(samples_copy):
     _edit_manifest(samples_copy / "grid-seed0-MM", lambda m: m.update(config_hash="x"))
     (samples_copy / "catalog.parquet").write_bytes(b"garbage")
     assert len(smgen("ls", "--lake", samples_copy, "--json").output.splitlines()) == 5
+
+
+# -- output files: never overwritten without --overwrite, never onto an input, always whole ----------
+def test_export_refuses_to_overwrite_and_never_writes_onto_its_input(samples_copy, tmp_path):
+    shard = samples_copy / "grid-seed0-MM" / "shard-00000.mcap"
+    before = shard.read_bytes()
+    for overwrite in ([], ["--overwrite"]):
+        args = ["export", "grid-seed0-MM", "--lake", samples_copy, "--format", "parquet", "--out", shard, *overwrite]
+        result = smgen(*args)
+        assert result.exit_code == 2 and "inside" in result.output, result.output
+    assert shard.read_bytes() == before
+    out = tmp_path / "x.parquet"
+    out.write_bytes(b"precious")
+    args = ["export", "grid-seed0-MM", "--lake", samples_copy, "--format", "parquet", "--out", out]
+    result = smgen(*args)
+    assert result.exit_code == 2 and "--overwrite" in result.output and out.read_bytes() == b"precious"
+    assert smgen(*args, "--overwrite").exit_code == 0 and out.read_bytes() != b"precious"
+    assert not list(tmp_path.glob("*.partial"))
+
+
+def test_view_save_is_atomic_and_refuses_to_overwrite(samples_copy, tmp_path, monkeypatch):
+    out = tmp_path / "x.rrd"
+    args = ["view", "grid-seed0-MM", "--lake", samples_copy, "--save", out]
+    assert smgen(*args).exit_code == 0
+    first = out.read_bytes()
+    result = smgen(*args)
+    assert result.exit_code == 2 and "--overwrite" in result.output and out.read_bytes() == first
+    import datagen.view
+
+    def full_disk(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(datagen.view, "_series", full_disk)  # fails midway through logging
+    result = smgen(*args, "--overwrite")
+    assert result.exit_code != 0
+    assert out.read_bytes() == first and not list(tmp_path.glob("*.partial"))
+    inside = smgen("view", "grid-seed0-MM", "--lake", samples_copy, "--save", samples_copy / "grid-seed0-MM" / "a.rrd")
+    assert inside.exit_code == 2 and "inside" in inside.output

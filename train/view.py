@@ -71,7 +71,7 @@ def view_run(run: RunDir, output: ViewOutput) -> int:
     embeddings = [run.embeddings(int(s)) for s in steps]
     p = embeddings[0][1].astype(np.float64)
     n = len(p)
-    with recording("smspace", f"run:{run.path.name}", blueprint(images), output) as rec:
+    with recording("smspace", f"run:{run.path.name}", blueprint(images), output, run.path) as rec:
         times = [rr.TimeColumn("step", sequence=steps)]
         text = f"# {run.path.name}\n\n```json\n{json.dumps(cfg.to_dict(), indent=1)}\n```\n"
         rec.log("run", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
