@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 import schemas
 from common.errors import SmspaceError
+from common.locks import hold_lock
 from datagen.setups import MODES, World, draw_transitions, get_setup
 from lake.atomic import remove_partials, sha256_file, write_atomic
 from lake.catalog import check_lake, rebuild_catalog
@@ -35,6 +36,7 @@ from lake.manifest import (
 )
 from lake.shards import Block, ShardReader, write_regular_sampling, write_shard
 
+LOCKS = ".locks"  # lake/.locks/<dataset id>.lock: held while that dataset is being generated
 _WORLDS: dict[tuple[str, int], World] = {}
 
 
@@ -248,6 +250,19 @@ def generate(
     if shutil.disk_usage(lake).free < 64 << 20:
         raise SmspaceError(f"less than 64 MiB free on the disk of {lake}")
     configs = [GenConfig(setup, mode, seed, transitions, shard_size) for seed in world_seeds for mode in modes]
+    # one generator per dataset: a second command on the same dataset waits, then finds it done
+    locks = [
+        hold_lock(lake / LOCKS / f"{cfg.dataset_id}.lock", f"another smgen is generating {cfg.dataset_id}", wait=True)
+        for cfg in sorted(configs, key=lambda c: c.dataset_id)
+    ]
+    try:
+        return _generate(lake, configs, workers, overwrite)
+    finally:
+        for lock in locks:
+            lock.release()
+
+
+def _generate(lake: Path, configs: list[GenConfig], workers: int, overwrite: bool) -> list[tuple[Manifest, bool]]:
     plans = [plan_dataset(lake, cfg, overwrite) for cfg in configs]
     _run_tasks([(p.cfg, p.folder, i) for p in plans for i in p.todo], workers)
     results = []

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from train.cli import main as smtrain_main
 from train.run_dir import RunDir
 
-from .conftest import SAMPLES, smgen
+from .conftest import BIN, SAMPLES, smgen
 
 
 def smtrain(*args):
@@ -327,3 +327,51 @@ def test_view_save_is_atomic_and_refuses_to_overwrite(samples_copy, tmp_path, mo
     assert out.read_bytes() == first and not list(tmp_path.glob("*.partial"))
     inside = smgen("view", "grid-seed0-MM", "--lake", samples_copy, "--save", samples_copy / "grid-seed0-MM" / "a.rrd")
     assert inside.exit_code == 2 and "inside" in inside.output
+
+
+# -- concurrent writers -----------------------------------------------------------------------------
+def test_two_identical_generations_at_once_both_succeed_with_one_dataset(tmp_path):
+    import subprocess
+
+    from .conftest import run_cmd
+
+    lake = tmp_path / "lake"
+    args = ["generate", "--setup", "grid", "--mode", "all", "--transitions", 60000, "--shard-size", 5000]
+    cmd = [str(BIN / "smgen"), *map(str, args), "--workers", "1", "--lake", str(lake)]
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    words = sorted(line.split("\t")[2] for out, _ in outs for line in out.splitlines())
+    assert words == ["exists"] * 3 + ["written"] * 3
+    assert (
+        run_cmd("smgen", "validate", "--lake", lake, "grid-seed0-MEM", "grid-seed0-MM", "grid-seed0-MME").returncode
+        == 0
+    )
+
+
+def test_a_run_folder_being_trained_refuses_a_second_trainer(tmp_path):
+    import json
+    import os
+    import signal
+    import subprocess
+    import time
+
+    out = tmp_path / "run"
+    cmd = [str(BIN / "smtrain"), "fit", "grid-seed0-MM", "--lake", str(SAMPLES), "--out", str(out)]
+    proc = subprocess.Popen([*cmd, "--steps", "100000", "--eval-every", "50"], stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and not (out / "status.json").exists():
+            time.sleep(0.05)
+        for extra in (["--overwrite"], []):
+            args = ["fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", out, "--steps", 10, *extra]
+            result = smtrain(*args) if extra else smtrain("fit", "--resume", out)
+            lines = result.output.strip().splitlines()
+            assert result.exit_code == 2 and len(lines) == 1 and "being trained by another process" in lines[0]
+        assert json.loads((out / "status.json").read_text())["state"] == "running"
+        assert RunDir.open(out).config.steps == 100000
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert RunDir.open(out).status()["state"] == "stale"
+    assert smtrain("fit", "--resume", out, "--steps", 100).exit_code == 0  # the lock died with its holder

@@ -174,6 +174,8 @@ def train_ensemble(runs: list[RunDir], resume: bool = False, threads: int = 1, p
     """Train runs together to their configured steps: from scratch, or (resume) from their checkpoints."""
     torch.set_num_threads(threads)
     device = resolve_device(runs[0].config.device)
+    for run in runs:
+        run.claim()  # before anything is recorded: a run another process trains is left untouched
     with recorded_outcome(runs):
         members = [open_member(run, run.config, device) for run in runs]
         for m in members:

@@ -70,6 +70,7 @@ def fit(cfg: TrainConfig, run: RunDir, resume: bool = False) -> dict[str, Any]:
     """Train (or resume) one run; returns its last metrics row."""
     torch.set_num_threads(cfg.threads)  # 2 cores: oversubscribed threads made steps 10-40x slower
     device = resolve_device(cfg.device)
+    run.claim()  # before anything is recorded: a run another process trains is left untouched
     with recorded_outcome([run]):
         member = open_member(run, cfg, device)
         manifest = member.dataset.manifest

@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 import torch
 
 from common.errors import SmspaceError
+from common.locks import HeldLock, hold_lock
 from lake.atomic import remove_partials, write_atomic
 from train.config import TrainConfig
 
@@ -30,6 +31,7 @@ METRICS = "metrics.parquet"
 EMBEDDINGS = "embeddings"
 CHECKPOINT = "checkpoint.pt"
 STATUS = "status.json"
+LOCK = ".lock"  # held (flock) by the process training the run
 
 METRICS_SCHEMA = pa.schema(
     [
@@ -66,6 +68,12 @@ EVALUATION_FILE = re.compile(r"(step|[a-z0-9_]+)-(?P<step>\d{7})\.(parquet|npy)"
 class RunDir:
     def __init__(self, path: Path):
         self.path = Path(path)
+        self._lock: HeldLock | None = None
+
+    def claim(self) -> None:
+        """Become the one process training this run; another one gets a clear refusal."""
+        if self._lock is None:
+            self._lock = hold_lock(self.path / LOCK, f"{self.path} is being trained by another process", wait=False)
 
     # -- lifecycle ------------------------------------------------------------------------
     @classmethod
@@ -73,16 +81,17 @@ class RunDir:
         run = cls(path)
         if run.path.exists() and not run.path.is_dir():
             raise SmspaceError(f"output {run.path} is a file, not a folder")
-        if (run.path / CONFIG).exists():
-            if not overwrite:
-                raise SmspaceError(f"{run.path} already holds a run: pass --resume to continue it or --overwrite")
-            run._clear()
-        elif run.path.exists() and any(run.path.iterdir()) and not overwrite:
+        if (run.path / CONFIG).exists() and not overwrite:
+            raise SmspaceError(f"{run.path} already holds a run: pass --resume to continue it or --overwrite")
+        elif run.path.exists() and any(p.name != LOCK for p in run.path.iterdir()) and not overwrite:
             raise SmspaceError(f"{run.path} is not empty and holds no run; choose another --out")
         try:
             run.path.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise SmspaceError(f"cannot create run folder {run.path}: {e.strerror or e}") from e
+        run.claim()
+        if (run.path / CONFIG).exists():
+            run._clear()
         run.write_config(cfg)
         return run
 
