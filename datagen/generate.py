@@ -230,6 +230,26 @@ def _run_tasks(tasks: list[tuple[GenConfig, Path, int]], workers: int) -> None:
                     bar.update(f.result())  # re-raises a worker's error here, after cleanup
 
 
+MAX_TRANSITIONS = 2**40  # a dataset's transition indices are int64 log times; far beyond any disk
+
+
+def _check_disk(lake: Path, configs: list[GenConfig], bytes_per_transition: int) -> None:
+    """Refuse, before writing anything, a generation the disk cannot hold: the estimate counts only
+    the shards not yet present (a resume needs little), with a margin for the files around them."""
+    missing = sum(
+        cfg.shard_range(i)[1] - cfg.shard_range(i)[0]
+        for cfg in configs
+        for i in range(cfg.n_shards)
+        if not (lake / cfg.dataset_id / shard_name(i)).is_file()
+    )
+    needed = int(missing * bytes_per_transition * 1.1) + (len(configs) << 20)
+    free = shutil.disk_usage(lake).free
+    if needed > free:
+        raise SmspaceError(
+            f"the disk of {lake} has {free / 2**20:.0f} MiB free; this generation needs about {needed / 2**20:.0f} MiB"
+        )
+
+
 def generate(
     lake: Path,
     setup: str,
@@ -245,11 +265,13 @@ def generate(
         raise SmspaceError(f"--transitions must be positive, got {transitions}")
     if shard_size <= 0:
         raise SmspaceError(f"--shard-size must be positive, got {shard_size}")
-    get_setup(setup).preflight()
+    if transitions > MAX_TRANSITIONS:
+        raise SmspaceError(f"--transitions {transitions} is more than a dataset may hold ({MAX_TRANSITIONS})")
+    spec = get_setup(setup)
+    spec.preflight()
     lake = check_lake(lake)
-    if shutil.disk_usage(lake).free < 64 << 20:
-        raise SmspaceError(f"less than 64 MiB free on the disk of {lake}")
     configs = [GenConfig(setup, mode, seed, transitions, shard_size) for seed in world_seeds for mode in modes]
+    _check_disk(lake, configs, spec.bytes_per_transition)
     # one generator per dataset: a second command on the same dataset waits, then finds it done
     locks = [
         hold_lock(lake / LOCKS / f"{cfg.dataset_id}.lock", f"another smgen is generating {cfg.dataset_id}", wait=True)

@@ -375,3 +375,55 @@ def test_a_run_folder_being_trained_refuses_a_second_trainer(tmp_path):
         proc.wait()
     assert RunDir.open(out).status()["state"] == "stale"
     assert smtrain("fit", "--resume", out, "--steps", 100).exit_code == 0  # the lock died with its holder
+
+
+# -- extreme options: bounded before anything is allocated or written -----------------------------
+@pytest.mark.parametrize(
+    ("flags", "needle"),
+    [
+        (["--threads", 100000], "--threads"),
+        (["--lr-start", "nan"], "--lr-start"),
+        (["--lr-end", "-1e-3"], "--lr-end"),
+        (["--lr-start", "inf"], "--lr-start"),
+        (["--nh", 10**7], "--nh"),
+        (["--encoder-layers", "100,100000000"], "--encoder-layers"),
+        (["--predictor-layers", ",".join(["8"] * 40)], "--predictor-layers"),
+        (["--loader-workers", 300], "--loader-workers"),
+        (["--batch-size", 10**8], "--batch-size"),
+        (["--batch-size", 5000], "larger than the dataset"),
+        (["--nh", 60000, "--encoder-layers", "60000,60000,60000"], "GiB of memory"),
+    ],
+)
+def test_extreme_training_options_get_one_line_and_exit_2(tmp_path, flags, needle):
+    out = tmp_path / "run"
+    result = smtrain("fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", out, *flags)
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1 and needle in lines[0], result.output
+    assert not out.exists()
+
+
+def test_extreme_generation_options_get_one_line_and_write_nothing(tmp_path):
+    lake = tmp_path / "lake"
+    for transitions, needle in ((10**13, "more than a dataset may hold"), (10**11, "MiB free")):
+        result = smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", transitions, "--lake", lake)
+        lines = result.output.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and needle in lines[0], result.output
+        assert not lake.exists() or not any(lake.iterdir())
+
+
+def test_the_disk_estimate_counts_only_missing_shards(tmp_path, monkeypatch):
+    import shutil as sh
+
+    import datagen.generate
+
+    lake = tmp_path / "lake"
+    args = ["generate", "--setup", "grid", "--mode", "MM", "--transitions", 200000, "--shard-size", 50000]
+    assert smgen(*args, "--lake", lake).exit_code == 0
+    (lake / "grid-seed0-MM" / "shard-00002.mcap").unlink()  # needs ~1 MiB of a 3.2 MB dataset
+    real = sh.disk_usage(lake)
+    monkeypatch.setattr(datagen.generate.shutil, "disk_usage", lambda p: real._replace(free=3 << 20))
+    assert smgen(*args, "--lake", lake).exit_code == 0  # 3 MiB free is enough for one shard
+    (lake / "grid-seed0-MM" / "shard-00002.mcap").unlink()
+    monkeypatch.setattr(datagen.generate.shutil, "disk_usage", lambda p: real._replace(free=1 << 19))
+    result = smgen(*args, "--lake", lake)
+    assert result.exit_code == 2 and "MiB free" in result.output

@@ -16,6 +16,7 @@ from common.cli import LAKE_OPTION, OneLineErrors, display_name, echo_listing, f
 from common.errors import SmspaceError
 from common.rerun_output import view_options
 from lake.manifest import SEED_MAX
+from train.config import MAX_LAYERS, MAX_WIDTH
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -32,7 +33,27 @@ def int_list(ctx, param, value: str | None) -> list[int] | None:
         raise click.BadParameter(f"expected comma-separated layer sizes, got {value!r}") from None
     if not sizes or min(sizes) <= 0:
         raise click.BadParameter(f"expected positive layer sizes, got {value!r}")
+    if len(sizes) > MAX_LAYERS or max(sizes) > MAX_WIDTH:
+        raise click.BadParameter(f"at most {MAX_LAYERS} layers of at most {MAX_WIDTH} units, got {value!r}")
     return sizes
+
+
+class PositiveFinite(click.ParamType):
+    """A float > 0 that is a number (click's FloatRange lets NaN and inf through)."""
+
+    name = "float"
+
+    def convert(self, value, param, ctx) -> float:
+        try:
+            x = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not (math.isfinite(x) and x > 0):
+            self.fail(f"{value!r} is not a finite positive number", param, ctx)
+        return x
+
+
+POSITIVE_FINITE = PositiveFinite()
 
 
 def _flag_name(f: Field) -> str:
@@ -55,7 +76,10 @@ def config_options(exclude: tuple[str, ...] = ()) -> Callable:
             else:
                 low, high = f.metadata["min"], f.metadata["max"]
                 bounded = low is not None or high is not None
-                kind = click.IntRange(low, high) if isinstance(default, int) and bounded else type(default)
+                if isinstance(default, float):
+                    kind = POSITIVE_FINITE
+                else:
+                    kind = click.IntRange(low, high) if isinstance(default, int) and bounded else type(default)
                 option = click.option(
                     _flag_name(f), f.name, type=kind, default=default, show_default=True, help=help_text
                 )
@@ -100,7 +124,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
     from dataclasses import replace
 
     from lake.dataset import Dataset
-    from train.config import flag_fields
+    from train.config import check_resources, flag_fields
     from train.fit import fit as run_fit
     from train.fit import resolve_device
     from train.run_dir import RunDir
@@ -126,6 +150,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
         ds = Dataset.open(dataset, lake)
         cfg = config_from_flags(flags).for_dataset(ds.folder, ds.manifest)
         resolve_device(cfg.device)
+        check_resources(cfg, ds.manifest)
         run = RunDir.create(out or RUNS / cfg.run_name, cfg, overwrite)
         result = run_fit(cfg, run)
     click.echo(f"run: {display_name(str(run.path))}")

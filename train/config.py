@@ -6,13 +6,18 @@ from the fields marked `flag(...)`, and every run stores its resolved config in 
 
 from __future__ import annotations
 
+import itertools
+import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from common.errors import SmspaceError
 from lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
 
 PAPER_PREDICTOR = (200, 150, 100)
+MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
+MAX_LAYERS = 32
 
 
 def flag(
@@ -37,24 +42,32 @@ class TrainConfig:
     setup: str = ""
     mode: str = ""
     # the flags
-    steps: int = flag(100_000, "Training steps.", minimum=1)
-    batch_size: int = flag(100, "Transitions per step.", minimum=1)
-    n_h: int = flag(3, "Dimension of h.", name="--nh", minimum=1)
+    steps: int = flag(100_000, "Training steps.", minimum=1, maximum=10**10)
+    batch_size: int = flag(100, "Transitions per step.", minimum=1, maximum=10**7)
+    n_h: int = flag(3, "Dimension of h.", name="--nh", minimum=1, maximum=MAX_WIDTH)
     encoder_layers: list[int] = flag([], "Net_enc hidden sizes, e.g. 150,100,50 [default: the paper's for the setup].")  # noqa: RUF009 - flag() returns a field
     predictor_layers: list[int] = flag(list(PAPER_PREDICTOR), "Net_pred hidden sizes.")  # noqa: RUF009
     lr_start: float = flag(1e-3, "Learning rate at step 0.")
     lr_end: float = flag(1e-5, "Learning rate after the decay.")
     lr_decay_steps: int = flag(0, "Steps of the linear decay [0: 80% of --steps].", minimum=0)
-    eval_every: int = flag(1000, "Steps between evaluations.", minimum=1)
+    eval_every: int = flag(1000, "Steps between evaluations.", minimum=1, maximum=10**10)
     seed: int = flag(0, "Seed of the initial weights and of the data order.", minimum=0, maximum=SEED_MAX)
     device: str = flag("cpu", "cpu or cuda.")
-    threads: int = flag(1, "torch CPU threads.", minimum=1)
-    loader_workers: int = flag(0, "DataLoader worker processes per run.", minimum=0)
+    threads: int = flag(1, "torch CPU threads.", minimum=1, maximum=256)
+    loader_workers: int = flag(0, "DataLoader worker processes per run.", minimum=0, maximum=64)
     # fixed by design, recorded so that a run folder says everything its numbers depend on
     eval_transitions: int = 4096  # the fixed set the evaluation loss is computed on
     shuffle_window: int = 8
 
     def __post_init__(self) -> None:
+        for name in ("lr_start", "lr_end"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise SmspaceError(f"--{name.replace('_', '-')} must be a finite positive number, got {value}")
+        for name in ("encoder_layers", "predictor_layers"):
+            sizes = getattr(self, name)
+            if len(sizes) > MAX_LAYERS or any(not 1 <= s <= MAX_WIDTH for s in sizes):
+                raise SmspaceError(f"--{name.replace('_', '-')}: at most {MAX_LAYERS} layers of 1..{MAX_WIDTH}")
         if self.lr_decay_steps <= 0:
             self.lr_decay_steps = max(1, round(0.8 * self.steps))
 
@@ -95,6 +108,57 @@ def default_encoder_layers(setup: str) -> tuple[int, ...]:
 def flag_fields() -> list:
     """The fields that are command-line flags, in declaration order."""
     return [f for f in fields(TrainConfig) if "help" in f.metadata]
+
+
+def parameter_count(cfg: TrainConfig, n_motor: int, n_sensor: int) -> int:
+    enc = [n_motor, *cfg.encoder_layers, cfg.n_h]
+    pred = [2 * cfg.n_h + n_sensor, *cfg.predictor_layers, n_sensor]
+    return sum(a * b + b for sizes in (enc, pred) for a, b in itertools.pairwise(sizes))
+
+
+def memory_needed(cfg: TrainConfig, n_motor: int, n_sensor: int, n_regular: int, runs: int = 1) -> int:
+    """Bytes `runs` runs of this config need, estimated before anything is allocated: weights,
+    gradients and Adam's two moments; activations kept for the backward pass; the evaluation set;
+    the loader's shuffle window."""
+    params = parameter_count(cfg, n_motor, n_sensor)
+    widths = 2 * (sum(cfg.encoder_layers) + cfg.n_h) + sum(cfg.predictor_layers) + 2 * cfg.n_h + 2 * n_sensor
+    row = 4 * (2 * n_motor + 2 * n_sensor)
+    per_run = (
+        16 * params
+        + 4 * 3 * cfg.batch_size * widths
+        + 4 * max(cfg.batch_size, n_regular) * (sum(cfg.encoder_layers) + cfg.n_h)
+        + cfg.eval_transitions * (row + 4 * widths)
+        + row * (cfg.shuffle_window * 1024 + 2 * cfg.batch_size)
+    )
+    return runs * per_run
+
+
+def available_memory() -> int:
+    """MemAvailable of this machine (Linux), or a generous guess elsewhere."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 1 << 40
+
+
+def check_resources(cfg: TrainConfig, manifest, runs: int = 1) -> None:
+    """Refuse, before allocating, what this machine cannot hold or what the dataset cannot feed."""
+    n_sensor = math.prod(manifest.sensor_shape)
+    if cfg.batch_size > manifest.transitions:
+        raise SmspaceError(
+            f"--batch-size {cfg.batch_size} is larger than the dataset ({manifest.transitions} transitions)"
+        )
+    needed = memory_needed(cfg, manifest.n_motor, n_sensor, manifest.regular_sampling["count"], runs)
+    free = available_memory()
+    if needed > free:
+        raise SmspaceError(
+            f"{runs} run(s) of this config need about {needed / 2**30:.1f} GiB of memory; "
+            f"{free / 2**30:.1f} GiB are available"
+        )
 
 
 def learning_rate(cfg: TrainConfig, step: int) -> float:

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from common.errors import SmspaceError
-from train.config import TrainConfig
+from train.config import TrainConfig, check_resources
 from train.evaluation import N_PREDICTIONS, EvalData
 from train.fit import build
 from train.loop import open_member, recorded_outcome, resolve_device, resume_members, train
@@ -188,6 +188,7 @@ def train_ensemble(runs: list[RunDir], resume: bool = False, threads: int = 1, p
             raise SmspaceError("runs of one ensemble must have datasets of the same setup")
         n_sensor = int(np.prod(shape))
         cfg0 = members[0].cfg
+        check_resources(cfg0, manifests[0], runs=len(runs))
         net = EnsembleNet(len(runs), n_motor, n_sensor, cfg0.n_h, cfg0.encoder_layers, cfg0.predictor_layers).to(device)
         opt = torch.optim.Adam(net.parameters(), lr=cfg0.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
         learner = EnsembleLearner(net, opt, [m.data for m in members])

@@ -127,6 +127,7 @@ SETUPS = (
         build=_builder(6),
         encoder_layers=(500, 400, 300, 200),
         shift_bound=float(max(-SHIFT_LOW, SHIFT_HIGH)),
+        bytes_per_transition=64,
         preview=write_preview,
     ),
 )

@@ -19,6 +19,7 @@ def _builder(n_motor: int):
 _COMMON = dict(
     shift_bound=SHIFT_BOUND,
     default_shard_size=8192,
+    bytes_per_transition=640,
     preflight=require_render_device,
     preview=write_preview,
     view_world=log_room_map,
