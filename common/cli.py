@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import functools
 import json
 import os
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -66,6 +69,7 @@ class OneLineErrors(click.Group):
 
     def main(self, *args, **kwargs):  # type: ignore[override]
         kwargs["standalone_mode"] = False
+        signal.signal(signal.SIGTERM, _terminate)
         try:
             code = super().main(*args, **kwargs)
         except click.exceptions.NoArgsIsHelpError as e:  # a bare `smgen`: the help, as click prints it
@@ -75,9 +79,9 @@ class OneLineErrors(click.Group):
             prog = kwargs.get("prog_name") or Path(sys.argv[0]).name
             click.echo(f"{prog}: error: {' '.join(e.format_message().split())}", err=True)
             sys.exit(2)
-        except click.Abort:
-            click.echo("Aborted!", err=True)
-            sys.exit(1)
+        except click.Abort:  # Ctrl-C or SIGTERM: whatever the command started is stopped by now
+            click.echo("interrupted", err=True)
+            sys.exit(130)
         sys.exit(code if isinstance(code, int) else 0)
 
 
@@ -98,3 +102,20 @@ def check_output(out: Path, overwrite: bool, inputs: list[Path]) -> None:
             raise SmspaceError(f"{out} is inside {folder}, which this command reads; write it elsewhere")
     if out.exists() and not overwrite:
         raise SmspaceError(f"{out} exists; pass --overwrite to replace it")
+
+
+def die_with_parent(sig: int = signal.SIGKILL, parent: int | None = None) -> None:
+    """In a child process: the kernel sends `sig` when the parent dies, however it dies (Linux),
+    so workers and viewers never outlive the command that started them. `parent`: the pid the child
+    was started by; if it is already gone (it died while the child was starting), exit now."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(1, int(sig), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # not Linux: the parent's own cleanup is all there is
+        pass
+    if parent is not None and os.getppid() != parent:
+        os._exit(1)
+
+
+def _terminate(signum, frame) -> None:
+    raise KeyboardInterrupt  # SIGTERM cleans up exactly as Ctrl-C does

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import click
 
-from common.cli import check_output
+from common.cli import check_output, die_with_parent
 from common.errors import SmspaceError
 
 PARTIAL_SUFFIX = ".partial"  # the suffix of every temporary file smspace writes
@@ -133,7 +133,14 @@ def serve_web(rrd: Path, web_port: int = 9090, grpc_port: int = 9876) -> None:
         str(rrd),
     ]
     env = {**os.environ, "RERUN_ANALYTICS": "0"}
-    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    proc = subprocess.Popen(
+        cmd,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+        preexec_fn=lambda: die_with_parent(signal.SIGTERM),  # a kill -9 of smspace takes the viewer down
+    )
     click.echo(f"web viewer: http://127.0.0.1:{web_port}  (Ctrl-C to stop)", err=True)
     try:
         code = proc.wait()

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 import shutil
+import signal
 import sys
 from collections.abc import Iterable
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
@@ -20,6 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 import schemas
+from common.cli import die_with_parent
 from common.errors import SmspaceError
 from common.locks import hold_lock
 from datagen.setups import MODES, World, draw_transitions, get_setup
@@ -221,13 +224,21 @@ def _run_tasks(tasks: list[tuple[GenConfig, Path, int]], workers: int) -> None:
                 bar.update(write_one_shard(*task))
             return
         ctx = multiprocessing.get_context("spawn")  # SAPIEN hangs in forked children
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futures = [pool.submit(write_one_shard, *task) for task in tasks]
-            pending = set(futures)
-            while pending:
-                done, pending = wait(pending, return_when=FIRST_EXCEPTION)
-                for f in done:
-                    bar.update(f.result())  # re-raises a worker's error here, after cleanup
+        with ProcessPoolExecutor(
+            max_workers=workers, mp_context=ctx, initializer=die_with_parent, initargs=(signal.SIGKILL, os.getpid())
+        ) as pool:
+            try:
+                futures = [pool.submit(write_one_shard, *task) for task in tasks]
+                pending = set(futures)
+                while pending:
+                    done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                    for f in done:
+                        bar.update(f.result())  # re-raises a worker's error here, after cleanup
+            except BaseException:  # an error, Ctrl-C or SIGTERM: stop the workers now, not after their shards
+                for process in list(pool._processes.values()):
+                    process.kill()
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
 
 
 MAX_TRANSITIONS = 2**40  # a dataset's transition indices are int64 log times; far beyond any disk

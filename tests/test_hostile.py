@@ -3,6 +3,8 @@ half-done, and leftovers of killed writers never block the next command."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import shutil
 from pathlib import Path
 
@@ -427,3 +429,89 @@ def test_the_disk_estimate_counts_only_missing_shards(tmp_path, monkeypatch):
     monkeypatch.setattr(datagen.generate.shutil, "disk_usage", lambda p: real._replace(free=1 << 19))
     result = smgen(*args, "--lake", lake)
     assert result.exit_code == 2 and "MiB free" in result.output
+
+
+# -- no process outlives the command that started it ------------------------------------------------
+def _descendants_alive(pids: set[int]) -> list[int]:
+    import psutil
+
+    return [p for p in pids if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+
+
+def _wait_gone(pids: set[int], seconds: float = 15) -> list[int]:
+    import time
+
+    deadline = time.time() + seconds
+    while time.time() < deadline and _descendants_alive(pids):
+        time.sleep(0.1)
+    return _descendants_alive(pids)
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGKILL"])
+def test_generation_workers_die_with_their_parent(tmp_path, sig):
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    cmd = [str(BIN / "smgen"), "generate", "--setup", "grid", "--mode", "all", "--transitions", "3000000"]
+    cmd += ["--shard-size", "20000", "--workers", "2", "--lake", str(tmp_path / "lake")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        deadline, workers = time.time() + 60, set()
+        while time.time() < deadline and len(workers) < 3:  # two workers and the resource tracker
+            workers = {p.pid for p in psutil.Process(proc.pid).children(recursive=True)}
+            time.sleep(0.1)
+        assert len(workers) >= 2, workers
+        proc.send_signal(getattr(signal, sig))
+        proc.wait(timeout=30)
+        assert not _wait_gone(workers), "workers outlived their parent"
+        if sig == "SIGTERM":
+            assert proc.returncode == 130 and "interrupted" in proc.stderr.read().decode()
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGKILL"])
+def test_the_web_viewer_dies_with_its_parent(sig):
+    import signal
+    import socket
+    import subprocess
+    import time
+
+    import psutil
+
+    def free_port() -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
+    def listening(port: int) -> bool:
+        return any(c.status == "LISTEN" and c.laddr.port == port for c in psutil.net_connections("tcp"))
+
+    web, grpc = free_port(), free_port()
+    cmd = [str(BIN / "smgen"), "view", "grid-seed0-MM", "--lake", str(SAMPLES), "--limit", "500", "--web"]
+    cmd += ["--web-port", str(web), "--grpc-port", str(grpc)]
+    env = {**os.environ, "RERUN_ANALYTICS": "0"}
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    viewers: set[int] = set()
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and not listening(web):
+            time.sleep(0.2)
+        assert listening(web)
+        viewers = {p.pid for p in psutil.process_iter() if p.ppid() == proc.pid}
+        assert viewers
+        proc.send_signal(getattr(signal, sig))
+        proc.wait(timeout=30)
+        assert not _wait_gone(viewers), "the viewer outlived smgen"
+        deadline = time.time() + 10
+        while time.time() < deadline and (listening(web) or listening(grpc)):
+            time.sleep(0.2)
+        assert not listening(web) and not listening(grpc)
+    finally:
+        for pid in [proc.pid, *viewers]:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
