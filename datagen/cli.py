@@ -13,7 +13,7 @@ from common.errors import SmspaceError
 from common.rerun_output import view_options
 from datagen.setups import SETUPS
 from lake.dataset import default_lake
-from lake.manifest import SEED_MAX
+from lake.manifest import MAX_WORLDS, SEED_MAX
 
 
 @click.group(name="smgen", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
@@ -28,7 +28,7 @@ def main() -> None:
 )
 @click.option("--mode", required=True, help="MEM, MM, MME, or all.")
 @click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
-@click.option("--worlds", type=click.IntRange(min=1), default=1, help="Number of worlds; seeds SEED, SEED+1, …")
+@click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=1, help="Number of worlds; seeds SEED, SEED+1, …")
 @click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, help="Seed of the first world.")
 @LAKE_OPTION
 @click.option(

@@ -31,6 +31,7 @@ from lake.catalog import check_lake, rebuild_catalog
 from lake.manifest import (
     GENERATION,
     MANIFEST,
+    MAX_SHARD_SIZE,
     REGULAR_FILE,
     GenConfig,
     Manifest,
@@ -276,6 +277,8 @@ def generate(
         raise SmspaceError(f"--transitions must be positive, got {transitions}")
     if shard_size <= 0:
         raise SmspaceError(f"--shard-size must be positive, got {shard_size}")
+    if shard_size > MAX_SHARD_SIZE:
+        raise SmspaceError(f"--shard-size {shard_size} is more than a worker holds in memory ({MAX_SHARD_SIZE})")
     if transitions > MAX_TRANSITIONS:
         raise SmspaceError(f"--transitions {transitions} is more than a dataset may hold ({MAX_TRANSITIONS})")
     spec = get_setup(setup)

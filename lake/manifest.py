@@ -20,6 +20,8 @@ GENERATION = "generation.json"  # present only while a generation is unfinished
 REGULAR_FILE = "regular.mcap"
 BATCH_SIZE = 1024
 SEED_MAX = 2**63 - 1  # a world seed is an int64 in the catalog
+MAX_WORLDS = 100_000  # worlds in one command: the plan of every dataset is held in memory
+MAX_SHARD_SIZE = 1 << 18  # transitions per shard: a worker holds one shard in memory (arm: ~0.5 GB)
 SHARD_FILE = re.compile(r"shard-\d{5}\.mcap")
 
 

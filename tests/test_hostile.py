@@ -515,3 +515,14 @@ def test_the_web_viewer_dies_with_its_parent(sig):
         for pid in [proc.pid, *viewers]:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
+
+
+def test_world_counts_and_shard_sizes_are_bounded(tmp_path):
+    lake = tmp_path / "lake"
+    for flags, needle in ((["--worlds", 10**9], "--worlds"), (["--shard-size", 10**9], "--shard-size")):
+        result = smgen("generate", "--setup", "grid", "--mode", "MM", *flags, "--lake", lake)
+        lines = result.output.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and needle in lines[0], result.output
+    result = smtrain("sweep", "--setup", "grid", "--worlds", 10**9, "--lake", lake, "--out", tmp_path / "runs")
+    assert result.exit_code == 2 and "--worlds" in result.output
+    assert not lake.exists() or not any(lake.iterdir())

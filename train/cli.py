@@ -15,7 +15,7 @@ import click
 from common.cli import LAKE_OPTION, OneLineErrors, display_name, echo_listing, friendly_errors
 from common.errors import SmspaceError
 from common.rerun_output import view_options
-from lake.manifest import SEED_MAX
+from lake.manifest import MAX_WORLDS, SEED_MAX
 from train.config import MAX_LAYERS, MAX_WIDTH
 
 if TYPE_CHECKING:
@@ -160,7 +160,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
 @main.command()
 @click.option("--setup", "setup_name", required=True, help="grid, grid6, arm, arm6")
 @click.option("--modes", default="MEM,MM,MME", show_default=True)
-@click.option("--worlds", type=click.IntRange(min=1), default=50, show_default=True)
+@click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
 @click.option(
     "--seed",
     "first_world",
@@ -180,7 +180,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
 @click.option("--out", type=click.Path(path_type=Path), default=RUNS, show_default=True)
 @config_options(exclude=("seed",))
 @click.option(
-    "--max-ensemble", type=click.IntRange(min=1), default=150, show_default=True, help="Runs per vectorised model."
+    "--max-ensemble", type=click.IntRange(1, 10_000), default=150, show_default=True, help="Runs per vectorised model."
 )
 @click.option("--overwrite", is_flag=True, help="Replace runs in --out made with another config.")
 @friendly_errors
