@@ -38,6 +38,7 @@ from lake.manifest import (
     load_manifest,
     shard_name,
 )
+from lake.manifest_check import dataset_file
 from lake.shards import Block, ShardReader, write_regular_sampling, write_shard
 
 LOCKS = ".locks"  # lake/.locks/<dataset id>.lock: held while that dataset is being generated
@@ -90,7 +91,7 @@ def write_one_shard(cfg: GenConfig, folder: Path, i: int) -> int:
 def _shard_is_good(path: Path, cfg: GenConfig, i: int) -> bool:
     """Keep a shard found under its final name only if it belongs to cfg and reads back whole: every
     chunk CRC checked and every batch decoded, so a shard damaged after it was written is redone."""
-    if path.is_symlink() or not path.is_file():
+    if not _regular(path):
         return False
     lo, hi = cfg.shard_range(i)
     try:
@@ -159,7 +160,16 @@ def _files_as_recorded(folder: Path) -> bool:
     """Cheap completeness check of a finished dataset: every file present with its recorded size."""
     manifest = load_manifest(folder)
     files = [*manifest.shards, manifest.regular_sampling]
-    return all((folder / f["file"]).exists() and (folder / f["file"]).stat().st_size == f["bytes"] for f in files)
+    return all(_regular(folder / f["file"]) and (folder / f["file"]).stat().st_size == f["bytes"] for f in files)
+
+
+def _regular(path: Path) -> bool:
+    """A dataset file as readers accept it (docs/FORMAT.md): present, regular, not a link."""
+    try:
+        dataset_file(path.parent, path.name)
+    except (FileNotFoundError, SmspaceError):
+        return False
+    return True
 
 
 def _merge_stats(stats: list[dict[str, list[float]]]) -> dict[str, list[float]]:

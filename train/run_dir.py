@@ -62,7 +62,7 @@ def array_file(name: str, step: int) -> str:
 
 
 PREDICTED, TRUE = "s_t1_pred", "s_t1_true"
-EVALUATION_FILE = re.compile(r"(step|[a-z0-9_]+)-(?P<step>\d{7})\.(parquet|npy)")
+EVALUATION_FILE = re.compile(r"[a-z0-9_]+-(?P<step>\d{7})\.(parquet|npy)")  # step-…, s_t1_pred-…, s_t1_true-…
 
 
 class RunDir:
