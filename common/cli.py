@@ -18,9 +18,8 @@ from common.errors import SmspaceError
 
 LAKE_OPTION = click.option(
     "--lake",
-    type=click.Path(path_type=Path),
     default=None,
-    help="Lake root folder [default: $SMSPACE_LAKE or data/lake].",
+    help="The lake: a folder or an fsspec URL such as s3://bucket/lake [default: $SMSPACE_LAKE or data/lake].",
 )
 
 
@@ -90,14 +89,14 @@ def display_name(name: str) -> str:
     return name.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
 
 
-def check_output(out: Path, overwrite: bool, inputs: list[Path]) -> None:
+def check_output(out: Path, overwrite: bool, inputs: list[Path | None]) -> None:
     """An output file may replace an existing file only with --overwrite, and never lands inside
     what the command reads (a dataset or run folder), --overwrite or not."""
     out = Path(out)
     if out.is_dir():
         raise SmspaceError(f"{out} is a folder; give a file name")
     resolved = out.resolve()
-    for folder in inputs:
+    for folder in filter(None, inputs):  # None: an input on object storage, never a local parent
         if resolved.is_relative_to(Path(folder).resolve()):
             raise SmspaceError(f"{out} is inside {folder}, which this command reads; write it elsewhere")
     if out.exists() and not overwrite:

@@ -60,7 +60,7 @@ def rerun_binary() -> Path:
 
 
 @contextmanager
-def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput, source: Path) -> Iterator:
+def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput, source: Path | None) -> Iterator:
     """A RecordingStream whose data ends up where the flags say; yields it for logging.
 
     An .rrd is written under a temporary name and renamed only once complete, so a kill or a full

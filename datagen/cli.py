@@ -8,11 +8,10 @@ from pathlib import Path
 
 import click
 
-from common.cli import LAKE_OPTION, OneLineErrors, default_workers, echo_listing, friendly_errors
+from common.cli import LAKE_OPTION, OneLineErrors, default_workers, display_name, echo_listing, friendly_errors
 from common.errors import SmspaceError
 from common.rerun_output import view_options
 from datagen.setups import SETUPS
-from lake.dataset import default_lake
 from lake.manifest import MAX_WORLDS, SEED_MAX
 
 
@@ -39,11 +38,45 @@ def main() -> None:
 )
 @click.option("--shard-size", type=int, default=None, help="Transitions per shard [grid 32768, arm 8192].")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
+@click.option(
+    "--executor",
+    type=click.Choice(["local", "ray"]),
+    default="local",
+    show_default=True,
+    help="Where parts run: local processes, or Ray ($RAY_ADDRESS, else a local Ray on --workers cores).",
+)
+@click.option("--gpus-per-task", type=click.FloatRange(0, 64), default=0.0, help="Ray: GPUs per part (SAPIEN on CUDA).")
+@click.option(
+    "--rank", type=click.IntRange(min=0), default=0, help="This task's rank in a job array (with --world-size)."
+)
+@click.option(
+    "--world-size",
+    type=click.IntRange(1, 1 << 20),
+    default=1,
+    help="Tasks in the job array: write only shards i with i % W == RANK, commit later with `smgen finalize`.",
+)
 @friendly_errors
-def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_size, overwrite) -> None:
+def generate(
+    setup_name,
+    mode,
+    transitions,
+    worlds,
+    seed,
+    lake,
+    workers,
+    shard_size,
+    overwrite,
+    executor,
+    gpus_per_task,
+    rank,
+    world_size,
+) -> None:
     """Generate datasets (resumable: re-running completes what is missing)."""
+    from datagen.executors import ExecutorOptions
+    from datagen.generate import Share
     from datagen.generate import generate as run
     from datagen.setups import MODES, check_mode, get_setup
+    from lake.dataset import open_lake
 
     setup = get_setup(setup_name)
     if seed + worlds - 1 > SEED_MAX:
@@ -51,11 +84,44 @@ def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_s
     modes = list(MODES) if mode == "all" else [check_mode(mode)]
     n = setup.default_transitions if transitions is None else transitions
     shard_size = setup.default_shard_size if shard_size is None else shard_size
-    lake = lake or default_lake()
-    workers = workers or default_workers()
-    results = run(lake, setup.name, modes, range(seed, seed + worlds), n, shard_size, workers, overwrite)
+    store = open_lake(lake)
+    share = Share(rank, world_size)
+    options = ExecutorOptions(workers=workers or default_workers(), gpus_per_task=gpus_per_task)
+    seeds = range(seed, seed + worlds)
+    results = run(
+        store,
+        setup.name,
+        modes,
+        seeds,
+        n,
+        shard_size,
+        overwrite=overwrite,
+        executor=executor,
+        share=share,
+        options=options,
+    )
+    if not share.whole:
+        ids = " ".join(f"{setup.name}-seed{s}-{m}" for s in seeds for m in modes)
+        click.echo(
+            f"rank {rank} of {world_size}: parts written; once every rank is done: smgen finalize {ids}", err=True
+        )
+        return
     for manifest, written in results:
-        click.echo(f"{manifest.dataset_id}\t{lake / manifest.dataset_id}\t{'written' if written else 'exists'}")
+        click.echo(f"{manifest.dataset_id}\t{store.child(manifest.dataset_id)}\t{'written' if written else 'exists'}")
+
+
+@main.command()
+@click.argument("datasets", nargs=-1, required=True)
+@LAKE_OPTION
+@friendly_errors
+def finalize(datasets, lake) -> None:
+    """Commit datasets written by the ranks of a job array, once every part is present and valid."""
+    from datagen.generate import finalize as run
+    from lake.dataset import open_lake, resolve_dataset
+
+    store = open_lake(lake)
+    for manifest, written in run(store, [resolve_dataset(ref, store) for ref in datasets]):
+        click.echo(f"{manifest.dataset_id}\t{store.child(manifest.dataset_id)}\t{'written' if written else 'exists'}")
 
 
 @main.command("ls")
@@ -65,12 +131,13 @@ def generate(setup_name, mode, transitions, worlds, seed, lake, workers, shard_s
 def ls_(lake, as_json) -> None:
     """List the datasets of a lake (from its catalog)."""
     from lake.catalog import read_catalog
+    from lake.dataset import open_lake
 
-    lake = lake or default_lake()
-    if lake.exists() and not lake.is_dir():
-        raise SmspaceError(f"lake path {lake} is a file, not a folder")
+    store = open_lake(lake)
+    if store.is_file():
+        raise SmspaceError(f"lake path {store} is a file, not a folder")
     echo_listing(
-        read_catalog(lake).to_pylist(),
+        read_catalog(store).to_pylist(),
         as_json,
         f"{'id':<28} {'setup':<6} {'mode':<4} {'seed':>5} {'transitions':>11} {'MB':>8}",
         lambda r: (
@@ -90,7 +157,7 @@ def info(dataset, lake, as_json) -> None:
     from lake.dataset import Dataset
 
     ds = Dataset.open(dataset, lake)
-    summary = ds.manifest.summary() | {"path": str(ds.folder)}
+    summary = ds.manifest.summary() | {"path": ds.url}
     if as_json:
         click.echo(json.dumps(summary, indent=1))
         return
@@ -116,7 +183,7 @@ def validate(datasets, lake) -> None:
         if problems:
             bad = True
         else:
-            click.echo(f"{folder.name}: ok")
+            click.echo(f"{display_name(folder.name)}: ok")
     sys.exit(1 if bad else 0)
 
 

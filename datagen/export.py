@@ -46,7 +46,7 @@ def export(ds: Dataset, fmt: str, out: Path, limit: int | None = None, overwrite
     """Write the export under a temporary name, renamed only when complete (never onto an input)."""
     if fmt not in FORMATS:
         raise SmspaceError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
-    check_output(out, overwrite, [ds.folder])
+    check_output(out, overwrite, [ds.local_folder])
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:

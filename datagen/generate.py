@@ -1,139 +1,98 @@
-"""Generate datasets into the lake: plan, write missing shards (in parallel), finalise.
+"""Generate datasets into the lake: plan, write the missing parts (anywhere), commit.
 
-Shard i is a pure function of (config, i): its random stream comes from
-SeedSequence(world_seed, spawn_key=(1, mode, i)), so the bytes do not depend on the worker count
-or on which shards an interrupted run had already written.
+The lake may be a local folder or object storage; the protocol is the same (docs/FORMAT.md,
+"Commit protocol"): every part goes whole to its final name, and once all are present and
+valid the manifest is created, create-only. A dataset without a manifest is invisible to
+`ls` and to every reader, so a killed generation leaves nothing that looks complete, and
+re-running it completes it byte-identically. With --rank/--world-size a command writes only
+its share of the parts and leaves the commit to `smgen finalize`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
-import multiprocessing
-import os
-import shutil
-import signal
-import sys
 from collections.abc import Iterable
-from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 import schemas
-from common.cli import die_with_parent
 from common.errors import SmspaceError
-from common.locks import hold_lock
-from datagen.setups import MODES, World, draw_transitions, get_setup
-from lake.atomic import remove_partials, sha256_file, write_atomic
+from datagen.executors import ExecutorOptions, open_executor
+from datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
+from datagen.setups import get_setup
 from lake.catalog import check_lake, rebuild_catalog
-from lake.manifest import (
-    GENERATION,
-    MANIFEST,
-    MAX_SHARD_SIZE,
-    REGULAR_FILE,
-    GenConfig,
-    Manifest,
-    load_manifest,
-    shard_name,
-)
-from lake.manifest_check import dataset_file
-from lake.shards import Block, ShardReader, write_regular_sampling, write_shard
+from lake.manifest import GENERATION, MANIFEST, MAX_SHARD_SIZE, REGULAR_FILE, GenConfig, Manifest, load_manifest
+from lake.store import Store
 
-LOCKS = ".locks"  # lake/.locks/<dataset id>.lock: held while that dataset is being generated
-_WORLDS: dict[tuple[str, int], World] = {}
+LOCKS = ".locks"  # lake/.locks/<dataset id>.lock: held while that dataset is generated (local lakes)
+MAX_TRANSITIONS = 2**40  # a dataset's transition indices are int64 log times; far beyond any disk
 
 
-def world_for(setup: str, seed: int) -> World:
-    """One world per (setup, seed) per process: building the SAPIEN room is not free."""
-    key = (setup, seed)
-    if key not in _WORLDS:
-        _WORLDS[key] = get_setup(setup).build(seed)
-    return _WORLDS[key]
+@dataclass(frozen=True)
+class Share:
+    """Which parts this command writes: all of them, or those of one rank of a job array."""
 
+    rank: int = 0
+    world_size: int = 1
 
-def shard_rng(cfg: GenConfig, i: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence(cfg.world_seed, spawn_key=(1, MODES.index(cfg.mode), i)))
+    def __post_init__(self) -> None:
+        if self.world_size < 1 or not 0 <= self.rank < self.world_size:
+            raise SmspaceError(f"--rank {self.rank} is not in 0 .. --world-size {self.world_size} - 1")
 
+    @property
+    def whole(self) -> bool:
+        return self.world_size == 1
 
-def _stats(blocks: list[Block]) -> dict[str, list[float]]:
-    m = np.concatenate([b.transitions.m_t for b in blocks])
-    s = np.concatenate([b.transitions.s_t.reshape(len(b.transitions), -1) for b in blocks])
-    return {
-        "m_min": m.min(0).astype(float).tolist(),
-        "m_max": m.max(0).astype(float).tolist(),
-        "s_min": s.min(0).astype(float).tolist(),
-        "s_max": s.max(0).astype(float).tolist(),
-    }
-
-
-def write_one_shard(cfg: GenConfig, folder: Path, i: int) -> int:
-    world = world_for(cfg.setup, cfg.world_seed)
-    rng = shard_rng(cfg, i)
-    lo, hi = cfg.shard_range(i)
-    blocks = [
-        Block(start, draw_transitions(world, cfg.mode, rng, min(cfg.batch_size, hi - start)))
-        for start in range(lo, hi, cfg.batch_size)
-    ]
-    metadata = {
-        "dataset_id": cfg.dataset_id,
-        "shard_index": str(i),
-        "first_index": str(lo),
-        "transitions": str(hi - lo),
-        "config_hash": cfg.config_hash,
-        "stats": json.dumps(_stats(blocks)),
-    }
-    write_shard(folder / shard_name(i), blocks, metadata)
-    return hi - lo
-
-
-def _shard_is_good(path: Path, cfg: GenConfig, i: int) -> bool:
-    """Keep a shard found under its final name only if it belongs to cfg and reads back whole: every
-    chunk CRC checked and every batch decoded, so a shard damaged after it was written is redone."""
-    if not _regular(path):
-        return False
-    lo, hi = cfg.shard_range(i)
-    try:
-        with ShardReader(path) as reader:
-            if reader.metadata().get("config_hash") != cfg.config_hash:
-                return False
-            return sum(len(b.transitions) for b in reader.blocks()) == hi - lo
-    except SmspaceError:
-        return False
-
-
-def _clear_dataset(folder: Path) -> None:
-    for pattern in (MANIFEST, GENERATION, REGULAR_FILE, "shard-*.mcap"):
-        for p in folder.glob(pattern):
-            p.unlink()
-    remove_partials(folder)
-
-
-def _recorded_hash(folder: Path) -> str | None:
-    for name in (MANIFEST, GENERATION):
-        path = folder / name
-        if path.exists():
-            try:
-                return json.loads(path.read_text())["config_hash"]
-            except (json.JSONDecodeError, KeyError, UnicodeDecodeError):
-                return "unreadable"
-    return None
+    def owns(self, part: int) -> bool:
+        """Shard i belongs to rank i % W; the regular-sampling file to rank 0."""
+        return (0 if part == REGULAR else part) % self.world_size == self.rank
 
 
 @dataclass
 class Plan:
     cfg: GenConfig
-    folder: Path
+    folder: Store
     todo: list[int]
+    found: dict[int, PartRecord]  # parts already stored and verified
     complete: bool
 
 
-def plan_dataset(lake: Path, cfg: GenConfig, overwrite: bool) -> Plan:
-    folder = lake / cfg.dataset_id
-    if folder.exists() and not folder.is_dir():
+def _recorded_hash(folder: Store) -> str | None:
+    for name in (MANIFEST, GENERATION):
+        try:
+            return json.loads(folder.read_bytes(name))["config_hash"]
+        except (FileNotFoundError, NotADirectoryError):
+            continue
+        except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError, SmspaceError):
+            return "unreadable"
+    return None
+
+
+def _clear_dataset(folder: Store) -> None:
+    for name in [MANIFEST, GENERATION, REGULAR_FILE, *folder.list("shard-*.mcap")]:
+        folder.delete(name)
+    folder.remove_partials()
+
+
+def _files_as_recorded(folder: Store) -> bool:
+    """Cheap completeness check of a finished dataset: every file present with its recorded size."""
+    manifest = load_manifest(folder)
+    for entry in [*manifest.shards, manifest.regular_sampling]:
+        try:
+            if folder.size(entry["file"]) != entry["bytes"]:
+                return False
+        except (FileNotFoundError, SmspaceError):
+            return False
+    return True
+
+
+def plan_dataset(lake: Store, cfg: GenConfig, overwrite: bool, share: Share = Share()) -> Plan:
+    folder = lake.child(cfg.dataset_id)
+    if folder.is_file():
         raise SmspaceError(f"{folder} exists and is not a folder")
-    recorded = _recorded_hash(folder) if folder.exists() else None
+    recorded = _recorded_hash(folder)
     if recorded is not None and recorded != cfg.config_hash:
         if not overwrite:
             raise SmspaceError(
@@ -141,35 +100,18 @@ def plan_dataset(lake: Path, cfg: GenConfig, overwrite: bool) -> Plan:
                 "pass --overwrite to replace it, or choose another --lake"
             )
         _clear_dataset(folder)
-    elif recorded is not None and (folder / MANIFEST).exists():
+    elif recorded is not None and folder.exists(MANIFEST):
         if _files_as_recorded(folder):
-            return Plan(cfg, folder, [], complete=True)
-        # a shard went missing or changed size: the dataset is incomplete again until repaired
-        (folder / MANIFEST).unlink()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        remove_partials(folder)
-    except OSError as e:
-        raise SmspaceError(f"cannot write to {folder}: {e.strerror or e}") from e
-    write_atomic(folder / GENERATION, json.dumps({"config": cfg.to_dict(), "config_hash": cfg.config_hash}).encode())
-    todo = [i for i in range(cfg.n_shards) if not _shard_is_good(folder / shard_name(i), cfg, i)]
-    return Plan(cfg, folder, todo, complete=False)
-
-
-def _files_as_recorded(folder: Path) -> bool:
-    """Cheap completeness check of a finished dataset: every file present with its recorded size."""
-    manifest = load_manifest(folder)
-    files = [*manifest.shards, manifest.regular_sampling]
-    return all(_regular(folder / f["file"]) and (folder / f["file"]).stat().st_size == f["bytes"] for f in files)
-
-
-def _regular(path: Path) -> bool:
-    """A dataset file as readers accept it (docs/FORMAT.md): present, regular, not a link."""
-    try:
-        dataset_file(path.parent, path.name)
-    except (FileNotFoundError, SmspaceError):
-        return False
-    return True
+            return Plan(cfg, folder, [], {}, complete=True)
+        # a file went missing or changed size: the dataset is incomplete again until repaired
+        folder.delete(MANIFEST)
+    folder.make()
+    if share.whole:  # ranks of an array run side by side: none may delete another's temporary files
+        folder.remove_partials()
+    folder.put(GENERATION, json.dumps({"config": cfg.to_dict(), "config_hash": cfg.config_hash}).encode())
+    mine = [p for p in parts_of(cfg) if share.owns(p)]
+    found = {p: r for p in mine if (r := verify_part(cfg, folder, p)) is not None}
+    return Plan(cfg, folder, [p for p in mine if p not in found], found, complete=False)
 
 
 def _merge_stats(stats: list[dict[str, list[float]]]) -> dict[str, list[float]]:
@@ -179,110 +121,62 @@ def _merge_stats(stats: list[dict[str, list[float]]]) -> dict[str, list[float]]:
     return out
 
 
-def finalize_dataset(plan: Plan) -> Manifest:
-    cfg, folder = plan.cfg, plan.folder
-    world = world_for(cfg.setup, cfg.world_seed)
-    m_reg, p_reg = world.regular_sampling()
-    write_regular_sampling(folder / REGULAR_FILE, m_reg, p_reg)
-    shards, stats = [], []
-    for i in range(cfg.n_shards):
-        path = folder / shard_name(i)
-        with ShardReader(path) as reader:
-            stats.append(reader.stats())
-        lo, hi = cfg.shard_range(i)
-        shards.append(
-            {
-                "file": path.name,
-                "first_index": lo,
-                "transitions": hi - lo,
-                "bytes": path.stat().st_size,
-                "sha256": sha256_file(path),
-            }
-        )
-    reg = folder / REGULAR_FILE
-    manifest = Manifest(
+def build_manifest(cfg: GenConfig, records: dict[int, PartRecord]) -> Manifest:
+    """The manifest of a dataset whose every part is stored and verified."""
+    shards = [records[i] for i in range(cfg.n_shards)]
+    reg = records[REGULAR]
+    first = shards[0]
+    if any(
+        (r.n_motor, r.sensor_shape, r.sensor_dtype) != (first.n_motor, first.sensor_shape, first.sensor_dtype)
+        for r in shards
+    ):
+        raise SmspaceError(f"dataset {cfg.dataset_id}: shards of different shapes; regenerate it with --overwrite")
+    return Manifest(
         dataset_id=cfg.dataset_id,
         setup=cfg.setup,
         mode=cfg.mode,
         world_seed=cfg.world_seed,
         transitions=cfg.transitions,
-        n_motor=world.n_motor,
-        sensor_shape=list(world.sensor_shape),
-        sensor_dtype=np.dtype(world.sensor_dtype).name,
+        n_motor=first.n_motor,
+        sensor_shape=list(first.sensor_shape),
+        sensor_dtype=first.sensor_dtype,
         schema_version=schemas.SCHEMA_VERSION,
         config=cfg.to_dict(),
         config_hash=cfg.config_hash,
-        shards=shards,
-        normalisation=_merge_stats(stats),
-        regular_sampling={
-            "file": REGULAR_FILE,
-            "count": len(m_reg),
-            "bytes": reg.stat().st_size,
-            "sha256": sha256_file(reg),
-        },
+        shards=[
+            {
+                "file": r.file,
+                "first_index": cfg.shard_range(r.part)[0],
+                "transitions": r.count,
+                "bytes": r.bytes,
+                "sha256": r.sha256,
+            }
+            for r in shards
+        ],
+        normalisation=_merge_stats([r.stats for r in shards]),
+        regular_sampling={"file": REGULAR_FILE, "count": reg.count, "bytes": reg.bytes, "sha256": reg.sha256},
         shift_bound=get_setup(cfg.setup).shift_bound,
     )
-    manifest.write(folder)
-    (folder / GENERATION).unlink(missing_ok=True)
-    return manifest
 
 
-def _run_tasks(tasks: list[tuple[GenConfig, Path, int]], workers: int) -> None:
-    total = sum(cfg.shard_range(i)[1] - cfg.shard_range(i)[0] for cfg, _, i in tasks)
-    with tqdm(total=total, unit="tr", unit_scale=True, disable=None, file=sys.stderr, desc="generating") as bar:
-        if workers <= 1 or len(tasks) <= 1:
-            for task in tasks:
-                bar.update(write_one_shard(*task))
-            return
-        ctx = multiprocessing.get_context("spawn")  # SAPIEN hangs in forked children
-        with ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=die_with_parent, initargs=(signal.SIGKILL, os.getpid())
-        ) as pool:
-            try:
-                futures = [pool.submit(write_one_shard, *task) for task in tasks]
-                pending = set(futures)
-                while pending:
-                    done, pending = wait(pending, return_when=FIRST_EXCEPTION)
-                    for f in done:
-                        bar.update(f.result())  # re-raises a worker's error here, after cleanup
-            except BaseException:  # an error, Ctrl-C or SIGTERM: stop the workers now, not after their shards
-                for process in list(pool._processes.values()):
-                    process.kill()
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
+def commit_dataset(folder: Store, cfg: GenConfig, records: dict[int, PartRecord]) -> tuple[Manifest, bool]:
+    """Create the manifest (the commit point); (manifest, True) if this call committed it. When
+    another generator committed first, its manifest stands if it records the same content."""
+    manifest = build_manifest(cfg, records)
+    try:
+        manifest.commit(folder)
+    except FileExistsError:
+        existing = load_manifest(folder)
+        if (existing.config_hash, existing.shards_digest) != (manifest.config_hash, manifest.shards_digest):
+            raise SmspaceError(
+                f"dataset {cfg.dataset_id} was committed meanwhile with other content; run validate on it"
+            ) from None
+        return existing, False
+    folder.delete(GENERATION)
+    return manifest, True
 
 
-MAX_TRANSITIONS = 2**40  # a dataset's transition indices are int64 log times; far beyond any disk
-
-
-def _check_disk(lake: Path, configs: list[GenConfig], bytes_per_transition: int) -> None:
-    """Refuse, before writing anything, a generation the disk cannot hold: the estimate counts only
-    the shards not yet present (a resume needs little), with a margin for the files around them."""
-    missing = sum(
-        cfg.shard_range(i)[1] - cfg.shard_range(i)[0]
-        for cfg in configs
-        for i in range(cfg.n_shards)
-        if not (lake / cfg.dataset_id / shard_name(i)).is_file()
-    )
-    needed = int(missing * bytes_per_transition * 1.1) + (len(configs) << 20)
-    free = shutil.disk_usage(lake).free
-    if needed > free:
-        raise SmspaceError(
-            f"the disk of {lake} has {free / 2**20:.0f} MiB free; this generation needs about {needed / 2**20:.0f} MiB"
-        )
-
-
-def generate(
-    lake: Path,
-    setup: str,
-    modes: Iterable[str],
-    world_seeds: Iterable[int],
-    transitions: int,
-    shard_size: int,
-    workers: int = 1,
-    overwrite: bool = False,
-) -> list[tuple[Manifest, bool]]:
-    """Generate (or complete) every (world, mode) dataset; returns (manifest, newly_written)."""
+def _check_request(transitions: int, shard_size: int) -> None:
     if transitions <= 0:
         raise SmspaceError(f"--transitions must be positive, got {transitions}")
     if shard_size <= 0:
@@ -291,31 +185,106 @@ def generate(
         raise SmspaceError(f"--shard-size {shard_size} is more than a worker holds in memory ({MAX_SHARD_SIZE})")
     if transitions > MAX_TRANSITIONS:
         raise SmspaceError(f"--transitions {transitions} is more than a dataset may hold ({MAX_TRANSITIONS})")
+
+
+def _check_disk(lake: Store, configs: list[GenConfig], bytes_per_transition: int, share: Share) -> None:
+    """Refuse, before writing anything, a generation the disk cannot hold: the estimate counts only
+    the shards not yet present (a resume needs little), with a margin for the files around them.
+    Object storage has no such limit to check."""
+    free = lake.free_bytes()
+    if free is None:
+        return
+    missing = 0
+    for cfg in configs:
+        folder = lake.child(cfg.dataset_id)
+        for i in range(cfg.n_shards):
+            if share.owns(i) and not folder.exists(part_file(i)):
+                lo, hi = cfg.shard_range(i)
+                missing += hi - lo
+    needed = int(missing * bytes_per_transition * 1.1) + (len(configs) << 20)
+    if needed > free:
+        raise SmspaceError(
+            f"the disk of {lake} has {free / 2**20:.0f} MiB free; this generation needs about {needed / 2**20:.0f} MiB"
+        )
+
+
+def generate(
+    lake: Store | str,
+    setup: str,
+    modes: Iterable[str],
+    world_seeds: Iterable[int],
+    transitions: int,
+    shard_size: int,
+    workers: int = 1,
+    overwrite: bool = False,
+    executor: str = "local",
+    share: Share = Share(),
+    options: ExecutorOptions | None = None,
+) -> list[tuple[Manifest | None, bool]]:
+    """Generate (or complete) every (world, mode) dataset; returns (manifest, newly committed) per
+    dataset, the manifest None where a rank of an array left the commit to `finalize`."""
+    _check_request(transitions, shard_size)
+    if overwrite and not share.whole:
+        raise SmspaceError("--overwrite cannot be combined with --world-size: ranks would delete each other's parts")
     spec = get_setup(setup)
-    spec.preflight()
+    options = options or ExecutorOptions(workers=workers)
+    with contextlib.ExitStack() as held:
+        run_parts = held.enter_context(open_executor(executor, setup, options))  # pre-flight: before any write
+        lake = check_lake(lake)
+        configs = [GenConfig(setup, mode, seed, transitions, shard_size) for seed in world_seeds for mode in modes]
+        _check_disk(lake, configs, spec.bytes_per_transition, share)
+        if share.whole:  # one generator per dataset: a second command waits, then finds it done
+            for cfg in sorted(configs, key=lambda c: c.dataset_id):
+                busy = f"another smgen is generating {cfg.dataset_id}"
+                held.enter_context(lake.lock(f"{LOCKS}/{cfg.dataset_id}.lock", busy, wait=True))
+        plans = [plan_dataset(lake, cfg, overwrite, share) for cfg in configs]
+        tasks = [(p.cfg, p.folder, part) for p in plans for part in p.todo]
+        by_id = {p.cfg.dataset_id: p for p in plans}
+        for (cfg, _, _), record in run_parts(tasks):
+            by_id[cfg.dataset_id].found[record.part] = record
+        results: list[tuple[Manifest | None, bool]] = []
+        for plan in plans:
+            if plan.complete:
+                results.append((load_manifest(plan.folder), False))
+            elif share.whole:
+                results.append(commit_dataset(plan.folder, plan.cfg, plan.found))
+            else:
+                results.append((None, False))
+    if share.whole:
+        rebuild_catalog(lake)
+    return results
+
+
+def finalize(lake: Store | str, folders: list[Store]) -> list[tuple[Manifest, bool]]:
+    """Commit datasets whose parts were written by the ranks of an array: every part must be
+    present and valid (each is read whole), else nothing is committed and the first gap is named."""
     lake = check_lake(lake)
-    configs = [GenConfig(setup, mode, seed, transitions, shard_size) for seed in world_seeds for mode in modes]
-    _check_disk(lake, configs, spec.bytes_per_transition)
-    # one generator per dataset: a second command on the same dataset waits, then finds it done
-    locks = [
-        hold_lock(lake / LOCKS / f"{cfg.dataset_id}.lock", f"another smgen is generating {cfg.dataset_id}", wait=True)
-        for cfg in sorted(configs, key=lambda c: c.dataset_id)
-    ]
-    try:
-        return _generate(lake, configs, workers, overwrite)
-    finally:
-        for lock in locks:
-            lock.release()
-
-
-def _generate(lake: Path, configs: list[GenConfig], workers: int, overwrite: bool) -> list[tuple[Manifest, bool]]:
-    plans = [plan_dataset(lake, cfg, overwrite) for cfg in configs]
-    _run_tasks([(p.cfg, p.folder, i) for p in plans for i in p.todo], workers)
+    ready = []
+    for folder in folders:
+        if folder.exists(MANIFEST):
+            ready.append((folder, None, None))
+            continue
+        try:
+            raw = json.loads(folder.read_bytes(GENERATION))
+            cfg = GenConfig(**raw["config"])
+        except FileNotFoundError:
+            raise SmspaceError(f"{folder} has no generation to finalize (no {GENERATION})") from None
+        except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError) as e:
+            raise SmspaceError(f"{folder}/{GENERATION} is unreadable ({e})") from None
+        records = {}
+        for part in parts_of(cfg):
+            record = verify_part(cfg, folder, part)
+            if record is None:
+                what = (
+                    "missing"
+                    if not folder.exists(part_file(part))
+                    else "invalid (incomplete, corrupt or of another config)"
+                )
+                raise SmspaceError(f"cannot finalize {cfg.dataset_id}: {part_file(part)} is {what}; re-run its rank")
+            records[part] = record
+        ready.append((folder, cfg, records))
     results = []
-    for plan in plans:
-        if plan.complete:
-            results.append((load_manifest(plan.folder), False))
-        else:
-            results.append((finalize_dataset(plan), True))
+    for folder, cfg, records in ready:
+        results.append((load_manifest(folder), False) if cfg is None else commit_dataset(folder, cfg, records))
     rebuild_catalog(lake)
     return results

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen.generate import world_for
+from datagen.parts import world_for
 from datagen.setups import get_setup
 from lake.dataset import Dataset
 

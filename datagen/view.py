@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from common.rerun_output import ViewOutput, recording
-from datagen.generate import world_for
+from datagen.parts import world_for
 from datagen.setups import get_setup
 from lake.dataset import Dataset
 
@@ -68,7 +68,7 @@ def view_dataset(ds: Dataset, limit: int | None, output: ViewOutput) -> int:
     images = tr.s_t.dtype == np.uint8
     setup = get_setup(ds.manifest.setup)
     layout = blueprint(images, setup.view_world is not None)
-    with recording("smspace", ds.manifest.dataset_id, layout, output, ds.folder) as rec:
+    with recording("smspace", ds.manifest.dataset_id, layout, output, ds.local_folder) as rec:
         times = [rr.TimeColumn("transition", sequence=np.arange(n))]
         rec.log("dataset", rr.TextDocument(metadata_markdown(ds), media_type=rr.MediaType.MARKDOWN), static=True)
         for name in ("s_t", "s_t1"):

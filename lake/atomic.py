@@ -46,6 +46,26 @@ def write_atomic(path: Path, data: bytes) -> None:
         fh.write(data)
 
 
+def create_exclusive(path: Path, data: bytes) -> None:
+    """Write `path` only if it does not exist (FileExistsError otherwise), complete or not at all:
+    the data goes to a temporary file, then a hard link claims the final name, which fails if it
+    is taken; two writers racing for the name cannot both succeed."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}{PARTIAL_SUFFIX}")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.link(tmp, path)
+        fsync_dir(path.parent)
+    except FileExistsError:
+        raise
+    except OSError as e:
+        raise SmspaceError(f"cannot write {path}: {e.strerror or e}") from e
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def sha256_file(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:

@@ -1,11 +1,15 @@
-"""The lake-level catalog: one Parquet row per complete dataset, rebuilt from the manifests."""
+"""The lake-level catalog: one Parquet row per complete dataset, derived from the manifests.
+
+The manifests are the truth; `catalog.parquet` is a cache of them that records which manifest
+versions it was built from (ETags on S3, size and mtime locally). A reader lists the manifests
+(one LIST request), and rebuilds the cache when the versions differ. So writers need no lock and
+no compare-and-swap: a catalog overwritten by a concurrent generator is merely stale, and the
+next reader notices and repairs it (docs/FORMAT.md, "Commit protocol")."""
 
 from __future__ import annotations
 
-import fcntl
 import io
-from collections.abc import Iterator
-from contextlib import contextmanager
+import json
 from pathlib import Path
 
 import pyarrow as pa
@@ -13,11 +17,11 @@ import pyarrow.parquet as pq
 
 from common.cli import display_name
 from common.errors import SmspaceError
-from lake.atomic import write_atomic
 from lake.manifest import MANIFEST, Manifest, load_manifest
+from lake.store import Store, open_store
 
 CATALOG = "catalog.parquet"
-LOCK = ".catalog.lock"
+SOURCES_KEY = b"smspace.manifests"  # Parquet metadata: {dataset id: manifest version}
 
 CATALOG_SCHEMA = pa.schema(
     [
@@ -36,46 +40,40 @@ CATALOG_SCHEMA = pa.schema(
 )
 
 
-def check_lake(lake: Path) -> Path:
+def _store(lake: Path | str | Store) -> Store:
+    return lake if isinstance(lake, Store) else open_store(lake)
+
+
+def check_lake(lake: Path | str | Store) -> Store:
     """The lake must be a folder (created if missing); a file there is a user error."""
-    lake = Path(lake)
-    if lake.exists() and not lake.is_dir():
-        raise SmspaceError(f"lake path {lake} is a file, not a folder")
+    store = _store(lake)
+    if store.is_file():
+        raise SmspaceError(f"lake path {store} is a file, not a folder")
     try:
-        lake.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise SmspaceError(f"cannot create lake folder {lake}: {e.strerror or e}") from e
-    return lake
+        store.make()
+    except SmspaceError as e:
+        raise SmspaceError(f"cannot create lake folder {store}: {e}") from None
+    return store
 
 
-@contextmanager
-def lake_lock(lake: Path) -> Iterator[None]:
-    """Serialise catalog rewrites between concurrent smgen processes."""
-    try:
-        fh = open(lake / LOCK, "a")  # noqa: SIM115 - closed below
-    except OSError as e:
-        raise SmspaceError(f"cannot lock lake {lake}: {e.strerror or e}") from e
-    with fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+def manifest_versions(lake: Store) -> dict[str, str]:
+    """{dataset id: version of its manifest}: one listing of the lake."""
+    return {path.split("/", 1)[0]: tag for path, tag in lake.fingerprints(f"*/{MANIFEST}").items()}
 
 
-def scan_manifests(lake: Path) -> tuple[list[Manifest], list[str]]:
+def scan_manifests(lake: Path | str | Store, ids: list[str] | None = None) -> tuple[list[Manifest], list[str]]:
     """The sound manifests of a lake, and one line per dataset folder whose manifest is not."""
+    lake = _store(lake)
     manifests, broken = [], []
-    for path in sorted(Path(lake).glob(f"*/{MANIFEST}")):
+    for dataset_id in sorted(manifest_versions(lake) if ids is None else ids):
         try:
-            manifests.append(load_manifest(path.parent))
-        except SmspaceError as e:
-            broken.append(f"{display_name(path.parent.name)}: {e}")
+            manifests.append(load_manifest(lake.child(dataset_id)))
+        except (SmspaceError, FileNotFoundError) as e:
+            broken.append(f"{display_name(dataset_id)}: {e}")
     return manifests, broken
 
 
-def catalog_table(lake: Path) -> pa.Table:
-    """One row per sound dataset of the lake, from its manifests."""
+def _rows(manifests: list[Manifest]) -> pa.Table:
     rows = [
         {
             "id": m.dataset_id,
@@ -90,32 +88,44 @@ def catalog_table(lake: Path) -> pa.Table:
             "schema_version": m.schema_version,
             "config_hash": m.config_hash,
         }
-        for m in scan_manifests(lake)[0]
+        for m in manifests
     ]
     return pa.Table.from_pylist(rows, schema=CATALOG_SCHEMA)
 
 
-def rebuild_catalog(lake: Path) -> pa.Table:
+def catalog_table(lake: Path | str | Store) -> pa.Table:
+    """One row per sound dataset of the lake, from its manifests."""
+    return _rows(scan_manifests(lake)[0])
+
+
+def rebuild_catalog(lake: Path | str | Store) -> pa.Table:
     """The catalog anew from the manifests; a broken dataset is left out, never fatal."""
-    with lake_lock(lake):
-        table = catalog_table(lake)
-        buf = io.BytesIO()
-        pq.write_table(table, buf, compression="zstd")
-        write_atomic(Path(lake) / CATALOG, buf.getvalue())
-        return table
+    lake = _store(lake)
+    versions = manifest_versions(lake)
+    table = _rows(scan_manifests(lake, list(versions))[0])
+    # a dataset whose manifest is broken keeps its version here too: the cache stays valid for it
+    meta = {SOURCES_KEY: json.dumps(versions, sort_keys=True).encode()}
+    buf = io.BytesIO()
+    pq.write_table(table.replace_schema_metadata(meta), buf, compression="zstd")
+    lake.put(CATALOG, buf.getvalue())
+    return table.replace_schema_metadata(None)
 
 
-def read_catalog(lake: Path) -> pa.Table:
-    """The catalog; a missing one is empty, an unreadable one is rebuilt from the manifests."""
-    path = Path(lake) / CATALOG
-    if not path.exists():
+def read_catalog(lake: Path | str | Store) -> pa.Table:
+    """The catalog, checked against one listing of the manifests; rebuilt when stale or unreadable.
+    A lake that does not exist yet is empty."""
+    lake = _store(lake)
+    if not lake.is_folder():
         return CATALOG_SCHEMA.empty_table()
+    versions = manifest_versions(lake)
     try:
-        table = pq.read_table(path)
-        if table.schema.equals(CATALOG_SCHEMA):
+        table = pq.read_table(pa.BufferReader(lake.read_bytes(CATALOG)))  # a BytesIO aborts at exit (pyarrow)
+        recorded = json.loads((table.schema.metadata or {}).get(SOURCES_KEY, b"null"))
+        table = table.replace_schema_metadata(None)
+        if table.schema.equals(CATALOG_SCHEMA) and recorded == versions:
             return table
-    except (OSError, pa.ArrowException):
-        pass
+    except (OSError, pa.ArrowException, SmspaceError, ValueError):
+        pass  # missing, unreadable or of an older layout: derive it again
     try:
         return rebuild_catalog(lake)
     except SmspaceError:  # a lake we may not write: list it all the same

@@ -1,4 +1,4 @@
-"""Open a dataset by folder or by id, and read it back into numpy."""
+"""Open a dataset by folder, URL or id, and read it back into numpy."""
 
 from __future__ import annotations
 
@@ -9,55 +9,98 @@ from pathlib import Path
 import numpy as np
 
 from common.errors import SmspaceError
-from lake.manifest import MANIFEST, Manifest, load_manifest
-from lake.manifest_check import dataset_file
+from lake.manifest import GENERATION, MANIFEST, Manifest, load_manifest
 from lake.shards import Block, ShardReader
+from lake.store import LocalStore, Store, is_url, open_store
 from lake.transitions import Transitions
 
-DEFAULT_LAKE = Path("data/lake")
+DEFAULT_LAKE = "data/lake"
 
 
-def default_lake() -> Path:
-    return Path(os.environ.get("SMSPACE_LAKE", DEFAULT_LAKE))
+def default_lake() -> str:
+    """$SMSPACE_LAKE (a folder or an fsspec URL such as s3://bucket/lake), else data/lake."""
+    return os.environ.get("SMSPACE_LAKE") or DEFAULT_LAKE
 
 
-def resolve_dataset(ref: str | Path, lake: Path | None = None) -> Path:
-    """DATASET on the command line: a dataset folder, or an id in the lake."""
-    path = Path(ref)
-    if (path / MANIFEST).exists() or (path.is_dir() and any(path.glob("shard-*"))):
-        return path
-    candidate = Path(lake or default_lake()) / str(ref)
-    if candidate.is_dir():
-        return candidate
-    raise SmspaceError(
-        f"unknown dataset {str(ref)!r}: not a dataset folder, nor an id in lake {lake or default_lake()}"
-    )
+def open_lake(ref: str | Path | Store | None) -> Store:
+    """The lake named by --lake, or the default one."""
+    if isinstance(ref, Store):
+        return ref
+    return open_store(ref if ref not in (None, "") else default_lake())
+
+
+def _is_dataset(store: Store) -> bool:
+    if isinstance(store, LocalStore):
+        return (store.path / MANIFEST).exists() or (store.path.is_dir() and any(store.path.glob("shard-*")))
+    return store.exists(MANIFEST) or store.exists(GENERATION)
+
+
+def resolve_dataset(ref: str | Path | Store, lake: str | Path | Store | None = None) -> Store:
+    """DATASET on the command line: a dataset folder or URL, or an id in the lake."""
+    if isinstance(ref, Store):
+        return ref
+    direct = open_store(ref)
+    if _is_dataset(direct):
+        return direct
+    if not is_url(ref) and "/" not in str(ref) and str(ref) not in ("", ".", ".."):
+        candidate = open_lake(lake).child(str(ref))
+        if candidate.is_folder():
+            return candidate
+    raise SmspaceError(f"unknown dataset {str(ref)!r}: not a dataset folder, nor an id in lake {open_lake(lake).url}")
+
+
+def canonical(store: Store) -> str:
+    """How a run config records its dataset: an absolute path, or the URL."""
+    return str(store.path.resolve()) if isinstance(store, LocalStore) else store.url
 
 
 class Dataset:
     """A complete dataset: its manifest and lazily opened shard readers."""
 
-    def __init__(self, folder: Path):
-        self.folder = Path(folder)
-        self.manifest: Manifest = load_manifest(self.folder)
+    def __init__(self, where: str | Path | Store):
+        self.store: Store = where if isinstance(where, Store) else open_store(where)
+        self.manifest: Manifest = load_manifest(self.store)
 
     @classmethod
-    def open(cls, ref: str | Path, lake: Path | None = None) -> Dataset:
+    def open(cls, ref: str | Path, lake: str | Path | Store | None = None) -> Dataset:
         return cls(resolve_dataset(ref, lake))
 
-    def file(self, name: str) -> Path:
-        """A file of this dataset, confined to its folder and regular (docs/FORMAT.md)."""
+    @property
+    def url(self) -> str:
+        return self.store.url
+
+    @property
+    def local_folder(self) -> Path | None:
+        """The folder on this machine, or None for a dataset on object storage."""
+        return self.store.path if isinstance(self.store, LocalStore) else None
+
+    def _checked(self, name: str) -> str:
         try:
-            return dataset_file(self.folder, name)
+            self.store.size(name)
         except FileNotFoundError:
-            raise SmspaceError(f"missing file {self.folder / name} of dataset {self.manifest.dataset_id}") from None
+            raise SmspaceError(f"missing file {self.url}/{name} of dataset {self.manifest.dataset_id}") from None
+        return name
+
+    def file(self, name: str) -> Path:
+        """A local file of this dataset, confined to its folder and regular (docs/FORMAT.md)."""
+        if not isinstance(self.store, LocalStore):
+            raise SmspaceError(f"dataset {self.url} is not on this machine")
+        return self.store.path / self._checked(name)
 
     def shard_paths(self) -> list[Path]:
         return [self.file(s["file"]) for s in self.manifest.shards]
 
+    def shard_reader(self, i: int) -> ShardReader:
+        """Shard i, opened for ranged reads (locally or on object storage)."""
+        return ShardReader(self.store, self._checked(self.manifest.shards[i]["file"]))
+
+    def shard_sizes(self) -> list[int]:
+        """The stored size of every shard (a missing one is named)."""
+        return [self.store.size(self._checked(s["file"])) for s in self.manifest.shards]
+
     def blocks(self) -> Iterator[Block]:
-        for path in self.shard_paths():
-            with ShardReader(path) as reader:
+        for i in range(len(self.manifest.shards)):
+            with self.shard_reader(i) as reader:
                 yield from reader.blocks()
 
     def read_all(self, limit: int | None = None) -> Transitions:
@@ -70,9 +113,9 @@ class Dataset:
             if limit is not None and have >= limit:
                 break
         if not parts:
-            raise SmspaceError(f"dataset {self.folder} has no transitions")
+            raise SmspaceError(f"dataset {self.url} has no transitions")
         return Transitions.concat(parts)[:limit]
 
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
-        with ShardReader(self.file(self.manifest.regular_sampling["file"])) as reader:
+        with ShardReader(self.store, self._checked(self.manifest.regular_sampling["file"])) as reader:
             return reader.regular_sampling()

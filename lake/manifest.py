@@ -13,7 +13,7 @@ from typing import Any
 
 import schemas
 from common.errors import DatasetCorrupt, SmspaceError
-from lake.atomic import write_atomic
+from lake.store import LocalStore, Store
 
 MANIFEST = "manifest.json"
 GENERATION = "generation.json"  # present only while a generation is unfinished
@@ -105,8 +105,10 @@ class Manifest:
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=1) + "\n"
 
-    def write(self, folder: Path) -> None:
-        write_atomic(folder / MANIFEST, self.to_json().encode())
+    def commit(self, folder: Store) -> None:
+        """The commit point of a generation: create-only, so of two generators one commits and the
+        other gets FileExistsError (docs/FORMAT.md, "Commit protocol")."""
+        folder.create(MANIFEST, self.to_json().encode())
 
     def summary(self) -> dict[str, Any]:
         """The short form shown by `smgen info --json`."""
@@ -127,19 +129,22 @@ class Manifest:
         }
 
 
-def load_manifest(folder: Path) -> Manifest:
-    """The manifest of a dataset folder, every field checked (types, names, hashes, statistics)."""
+def load_manifest(folder: Path | Store, data: bytes | None = None) -> Manifest:
+    """The manifest of a dataset folder, every field checked (types, names, hashes, statistics);
+    `data`: its bytes when the caller already fetched them (a lake listing)."""
     from lake.manifest_check import check_manifest
 
-    path = folder / MANIFEST
+    if not isinstance(folder, Store):
+        folder = LocalStore(folder)
+    path = f"{folder.url}/{MANIFEST}"
     try:
-        if path.is_symlink() or (path.exists() and not path.is_file()):
-            raise DatasetCorrupt(f"corrupt manifest {path}: not a regular file")
-        raw = json.loads(path.read_text())
-    except FileNotFoundError:
-        if (folder / GENERATION).exists():
+        raw = json.loads(folder.read_bytes(MANIFEST) if data is None else data)
+    except (FileNotFoundError, NotADirectoryError):
+        if folder.exists(GENERATION):
             raise SmspaceError(f"dataset {folder} is incomplete (its generation did not finish): re-run it") from None
         raise SmspaceError(f"{folder} is not a dataset (no {MANIFEST})") from None
+    except DatasetCorrupt as e:
+        raise DatasetCorrupt(f"corrupt manifest {path}: not a regular file") from e
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DatasetCorrupt(f"corrupt manifest {path}: {e}") from e
     if not isinstance(raw, dict):

@@ -4,14 +4,12 @@ is named in one line instead of crashing a reader, and can name no file outside 
 from __future__ import annotations
 
 import math
-import os
 import re
-import stat
 from pathlib import Path
 from typing import Any
 
-from common.errors import DatasetCorrupt
 from lake.manifest import REGULAR_FILE, SEED_MAX, SHARD_FILE, GenConfig, shard_name
+from lake.store import LocalStore
 from lake.transitions import MODES
 
 DTYPES = ("float32", "uint8")
@@ -121,14 +119,6 @@ def _check_normalisation(raw: dict[str, Any]) -> str | None:
 
 
 def dataset_file(folder: Path, name: str) -> Path:
-    """A file of a dataset: a regular file directly inside its folder, never a link, device or FIFO.
-
-    Raises FileNotFoundError when absent and DatasetCorrupt when it is anything but a regular file,
-    so nothing a manifest names can make a reader leave the folder or block on a special file."""
-    if "/" in name or name in ("", ".", ".."):
-        raise DatasetCorrupt(f"{folder / name}: not a file name inside the dataset")
-    path = Path(folder) / name
-    st = os.lstat(path)  # FileNotFoundError propagates: a missing file is the caller's to report
-    if not stat.S_ISREG(st.st_mode):
-        raise DatasetCorrupt(f"{path}: not a regular file (a link, folder or special file)")
-    return path
+    """A file of a local dataset: a regular file directly inside its folder, never a link, device or
+    FIFO (FileNotFoundError when absent, DatasetCorrupt when anything but a regular file)."""
+    return LocalStore(folder).file(name)

@@ -7,20 +7,26 @@ which is what readers use to split work and to seek.
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from mcap.data_stream import ReadDataStream
 from mcap.reader import SeekingReader, make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 import schemas
 from common.errors import DatasetCorrupt, SmspaceError
-from lake.atomic import atomic_writer
+from lake.store import LocalStore, Store
 from lake.transitions import Transitions
+
+CHUNK_PREFIX = 1 + 8  # a chunk record's opcode and length, before its content
 
 TRANSITIONS_TOPIC = "/transitions"
 REGULAR_TOPIC = "/regular_sampling"
@@ -106,36 +112,53 @@ def _start_writer(fh, schema_name: str, message_class, topic: str) -> tuple[Writ
     return writer, channel_id
 
 
-def write_shard(path: Path, blocks: Sequence[Block], metadata: dict[str, str]) -> None:
-    """Write a shard under a temporary name and rename it only once complete."""
-    with atomic_writer(path) as fh:
-        writer, channel = _start_writer(fh, schemas.TRANSITION_BATCH, schemas.TransitionBatch, TRANSITIONS_TOPIC)
-        writer.add_metadata(SHARD_METADATA, metadata)
-        for seq, block in enumerate(blocks):
-            t = block.first_index  # log_time = transition index, so time ranges select transitions
-            writer.add_message(
-                channel, log_time=t, publish_time=t, data=encode_batch(t, block.transitions), sequence=seq
-            )
-        writer.finish()
+def shard_bytes(blocks: Sequence[Block], metadata: dict[str, str]) -> bytes:
+    """A whole shard in memory: it is stored in one step (a rename locally, one PUT on S3)."""
+    fh = io.BytesIO()
+    writer, channel = _start_writer(fh, schemas.TRANSITION_BATCH, schemas.TransitionBatch, TRANSITIONS_TOPIC)
+    writer.add_metadata(SHARD_METADATA, metadata)
+    for seq, block in enumerate(blocks):
+        t = block.first_index  # log_time = transition index, so time ranges select transitions
+        writer.add_message(channel, log_time=t, publish_time=t, data=encode_batch(t, block.transitions), sequence=seq)
+    writer.finish()
+    return fh.getvalue()
 
 
-def write_regular_sampling(path: Path, m: np.ndarray, p: np.ndarray) -> None:
+def regular_sampling_bytes(m: np.ndarray, p: np.ndarray) -> bytes:
     msg = schemas.RegularSampling(schema_version=schemas.SCHEMA_VERSION, count=len(m), motor_dim=m.shape[1])
     msg.m.extend(m.astype(np.float32).reshape(-1))
     msg.p.extend(p.astype(np.float32).reshape(-1))
-    with atomic_writer(path) as fh:
-        writer, channel = _start_writer(fh, schemas.REGULAR_SAMPLING, schemas.RegularSampling, REGULAR_TOPIC)
-        writer.add_message(channel, log_time=0, publish_time=0, data=msg.SerializeToString(), sequence=0)
-        writer.finish()
+    fh = io.BytesIO()
+    writer, channel = _start_writer(fh, schemas.REGULAR_SAMPLING, schemas.RegularSampling, REGULAR_TOPIC)
+    writer.add_message(channel, log_time=0, publish_time=0, data=msg.SerializeToString(), sequence=0)
+    writer.finish()
+    return fh.getvalue()
+
+
+def write_shard(path: Path, blocks: Sequence[Block], metadata: dict[str, str]) -> None:
+    LocalStore(path.parent).put(path.name, shard_bytes(blocks, metadata))
+
+
+def write_regular_sampling(path: Path, m: np.ndarray, p: np.ndarray) -> None:
+    LocalStore(path.parent).put(path.name, regular_sampling_bytes(m, p))
 
 
 class ShardReader:
-    """Reads one shard; keep one open per shard and worker (re-reading the summary is costly)."""
+    """Reads one shard; keep one open per shard and worker (re-reading the summary is costly).
 
-    def __init__(self, path: Path, validate_crcs: bool = True):
-        self.path = Path(path)
+    The summary comes down once; then each batch is one ranged read of its chunk, located by the
+    chunk index (one request per batch on object storage, never a whole-shard download)."""
+
+    def __init__(
+        self, where: Path | Store, name: str | None = None, validate_crcs: bool = True, data: bytes | None = None
+    ):
+        if name is None:  # a local path
+            where, name = LocalStore(Path(where).parent), Path(where).name
+        self.store, self.name, self._data = where, name, data
+        self.path = f"{where.url}/{name}"  # for messages
+        self._validate_crcs = validate_crcs
         try:
-            self._fh = open(self.path, "rb")  # noqa: SIM115 - closed by close()/__exit__
+            self._fh = io.BytesIO(data) if data is not None else where.open(name)
         except FileNotFoundError:
             raise SmspaceError(f"missing shard {self.path}") from None
         try:
@@ -177,12 +200,29 @@ class ShardReader:
     def stats(self) -> dict[str, list[float]]:
         return json.loads(self.metadata().get("stats", "{}"))
 
+    def _chunk(self, offset: int, length: int) -> bytes:
+        start, n = offset + CHUNK_PREFIX, length - CHUNK_PREFIX
+        if self._data is not None:
+            return self._data[start : start + n]
+        return self.store.read_range(self.name, start, n)
+
     def _raw(self, starting_at: int | None = None, ending_before: int | None = None) -> Iterator[bytes]:
+        low = -1 if starting_at is None else starting_at
+        high = float("inf") if ending_before is None else ending_before
+        indexes = sorted(self.summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
         try:
-            for _, _, message in self._reader.iter_messages(
-                log_time_order=False, starting_at=starting_at, ending_before=ending_before
-            ):
-                yield message.data
+            for ci in indexes:
+                if not low <= ci.message_start_time < high:
+                    continue
+                data = self._chunk(ci.chunk_start_offset, ci.chunk_length)
+                if len(data) != ci.chunk_length - CHUNK_PREFIX:
+                    raise ValueError(f"chunk at {ci.chunk_start_offset} cut short")
+                chunk = Chunk.read(ReadDataStream(io.BytesIO(data)))
+                for record in breakup_chunk(chunk, validate_crc=self._validate_crcs):
+                    if isinstance(record, Message) and low <= record.log_time < high:
+                        yield record.data
+        except SmspaceError:
+            raise
         except Exception as e:
             raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
 

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
 
 import schemas
 from common.errors import SmspaceError
-from lake.atomic import sha256_file
 from lake.manifest import load_manifest
-from lake.manifest_check import dataset_file
 from lake.shards import ShardReader
+from lake.store import Store, open_store
 
 
 class _ModeCheck:
@@ -69,9 +69,20 @@ def _batch_problems(tr, bound: float | None, mode: str) -> list[str]:
     return problems
 
 
-def validate_dataset(folder: Path) -> list[str]:
-    """Every problem found, one line each, naming the file; empty when the dataset is sound."""
-    folder = Path(folder)
+def _fetch(folder: Store, name: str) -> tuple[bytes | None, str | None]:
+    """A file's bytes, fetched once (one download on object storage), or why not."""
+    try:
+        return folder.read_bytes(name), None
+    except FileNotFoundError:
+        return None, "missing"
+    except SmspaceError as e:
+        return None, str(e)
+
+
+def validate_dataset(folder: Store | Path) -> list[str]:
+    """Every problem found, one line each, naming the file; empty when the dataset is sound. Each
+    file is fetched once and checked from memory: sha256, every chunk CRC, every batch."""
+    folder = folder if isinstance(folder, Store) else open_store(Path(folder))
     try:
         manifest = load_manifest(folder)
     except SmspaceError as e:
@@ -81,23 +92,18 @@ def validate_dataset(folder: Path) -> list[str]:
     expected_index = 0
     for shard in manifest.shards:
         where = f"{folder.name}/{shard['file']}"
-        try:
-            path = dataset_file(folder, shard["file"])
-        except FileNotFoundError:
-            problems.append(f"{where}: missing")
+        data, why = _fetch(folder, shard["file"])
+        if data is None:
+            problems.append(f"{where}: {why}")
             continue
-        except SmspaceError as e:
-            problems.append(f"{where}: {e}")
-            continue
-        size = path.stat().st_size
-        if size != shard["bytes"]:
-            problems.append(f"{where}: {size} bytes, manifest says {shard['bytes']} (truncated or replaced)")
-        if sha256_file(path) != shard["sha256"]:
+        if len(data) != shard["bytes"]:
+            problems.append(f"{where}: {len(data)} bytes, manifest says {shard['bytes']} (truncated or replaced)")
+        if hashlib.sha256(data).hexdigest() != shard["sha256"]:
             problems.append(f"{where}: sha256 differs from the manifest")
         expected_index = shard["first_index"]
         count = 0
         try:
-            with ShardReader(path) as reader:
+            with ShardReader(folder, shard["file"], data=data) as reader:
                 for block in reader.blocks():
                     tr = block.transitions
                     if block.first_index != expected_index:
@@ -127,19 +133,16 @@ def validate_dataset(folder: Path) -> list[str]:
     return _dedupe(problems)
 
 
-def _regular_problems(folder: Path, manifest) -> list[str]:
+def _regular_problems(folder: Store, manifest) -> list[str]:
     reg = manifest.regular_sampling
     where = f"{folder.name}/{reg['file']}"
-    try:
-        path = dataset_file(folder, reg["file"])
-    except FileNotFoundError:
-        return [f"{where}: missing"]
-    except SmspaceError as e:
-        return [f"{where}: {e}"]
-    if sha256_file(path) != reg["sha256"]:
+    data, why = _fetch(folder, reg["file"])
+    if data is None:
+        return [f"{where}: {why}"]
+    if hashlib.sha256(data).hexdigest() != reg["sha256"]:
         return [f"{where}: sha256 differs from the manifest"]
     try:
-        with ShardReader(path) as reader:
+        with ShardReader(folder, reg["file"], data=data) as reader:
             m, _ = reader.regular_sampling()
     except SmspaceError as e:
         return [f"{where}: {e}"]

@@ -138,18 +138,22 @@ def test_manifest_of_another_schema_version(lake_copy):
 
 def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):
     """ENOSPC mid-write: a clear error naming the file, and no half-written shard."""
-    import lake.shards as shards
+    import builtins
+    import io
 
-    real = shards.encode_batch
-    calls = {"n": 0}
+    import lake.atomic as atomic
 
-    def failing(*args):
-        calls["n"] += 1
-        if calls["n"] == 3:
+    class FillsUp(io.FileIO):
+        def write(self, data):  # half the shard reaches the disk, then the disk is full
+            super().write(bytes(data)[: len(data) // 2])
             raise OSError(28, "No space left on device")
-        return real(*args)
 
-    monkeypatch.setattr(shards, "encode_batch", failing)
+    def full_disk_open(path, mode="r", *args, **kwargs):
+        if "shard-00000" in str(path) and "w" in mode:
+            return FillsUp(path, "w")
+        return builtins.open(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(atomic, "open", full_disk_open, raising=False)
     line = one_error_line(
         smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 5000, "--lake", tmp_path)
     )

@@ -416,17 +416,17 @@ def test_extreme_generation_options_get_one_line_and_write_nothing(tmp_path):
 def test_the_disk_estimate_counts_only_missing_shards(tmp_path, monkeypatch):
     import shutil as sh
 
-    import datagen.generate
+    import lake.store as lake_store
 
     lake = tmp_path / "lake"
     args = ["generate", "--setup", "grid", "--mode", "MM", "--transitions", 200000, "--shard-size", 50000]
     assert smgen(*args, "--lake", lake).exit_code == 0
     (lake / "grid-seed0-MM" / "shard-00002.mcap").unlink()  # needs ~1 MiB of a 3.2 MB dataset
     real = sh.disk_usage(lake)
-    monkeypatch.setattr(datagen.generate.shutil, "disk_usage", lambda p: real._replace(free=3 << 20))
+    monkeypatch.setattr(lake_store.shutil, "disk_usage", lambda p: real._replace(free=3 << 20))
     assert smgen(*args, "--lake", lake).exit_code == 0  # 3 MiB free is enough for one shard
     (lake / "grid-seed0-MM" / "shard-00002.mcap").unlink()
-    monkeypatch.setattr(datagen.generate.shutil, "disk_usage", lambda p: real._replace(free=1 << 19))
+    monkeypatch.setattr(lake_store.shutil, "disk_usage", lambda p: real._replace(free=1 << 19))
     result = smgen(*args, "--lake", lake)
     assert result.exit_code == 2 and "MiB free" in result.output
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from datagen.generate import shard_rng, world_for
+from datagen.parts import shard_rng, world_for
 from datagen.setups import draw_transitions
 from lake.dataset import Dataset
 from lake.manifest import GenConfig

@@ -148,7 +148,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
         if dataset is None:
             raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
         ds = Dataset.open(dataset, lake)
-        cfg = config_from_flags(flags).for_dataset(ds.folder, ds.manifest)
+        cfg = config_from_flags(flags).for_dataset(ds.store, ds.manifest)
         resolve_device(cfg.device)
         check_resources(cfg, ds.manifest)
         run = RunDir.create(out or RUNS / cfg.run_name, cfg, overwrite)
@@ -190,7 +190,7 @@ def sweep(
     """Generate missing datasets, then train every (world, mode) run as vectorised ensembles."""
     from common.cli import default_workers
     from datagen.setups import check_mode, get_setup
-    from lake.dataset import default_lake
+    from lake.dataset import open_lake
     from train.fit import resolve_device
     from train.sweep import sweep as run_sweep
 
@@ -203,7 +203,7 @@ def sweep(
         mode_list,
         list(range(first_world, first_world + worlds)),
         template,
-        lake or default_lake(),
+        open_lake(lake),
         out,
         transitions,
         gen_workers or default_workers(),

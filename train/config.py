@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import Any
 
 from common.errors import SmspaceError
+from lake.dataset import canonical
 from lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
+from lake.store import Store, open_store
 
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
@@ -84,12 +86,12 @@ class TrainConfig:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in raw.items() if k in known})
 
-    def for_dataset(self, folder: Path, manifest) -> TrainConfig:
+    def for_dataset(self, folder: Store | Path, manifest) -> TrainConfig:
         """This config bound to a dataset: its identity, setup, mode and the setup's default encoder."""
         encoder = self.encoder_layers or default_encoder_layers(manifest.setup)
         return replace(
             self,
-            dataset=str(Path(folder).resolve()),
+            dataset=canonical(folder if isinstance(folder, Store) else open_store(Path(folder))),
             dataset_id=manifest.dataset_id,
             dataset_config_hash=manifest.config_hash,
             dataset_shards_sha256=manifest.shards_digest,

@@ -75,7 +75,7 @@ def fit(cfg: TrainConfig, run: RunDir, resume: bool = False) -> dict[str, Any]:
         member = open_member(run, cfg, device)
         manifest = member.dataset.manifest
         if not cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
-            cfg = member.cfg = cfg.for_dataset(member.dataset.folder, manifest)
+            cfg = member.cfg = cfg.for_dataset(member.dataset.store, manifest)
         model, optimizer = build(cfg, manifest.n_motor, int(np.prod(manifest.sensor_shape)), device)
         learner = SingleLearner(model, optimizer, member.data)
         step = resume_members(learner, [member], device) if resume else 0

@@ -65,7 +65,7 @@ class TransitionStream(IterableDataset):
         """rank/world_size default to torch.distributed's when it is initialised, else 0 of 1."""
         super().__init__()
         self.rank, self.world_size = rank, world_size
-        self.dataset = dataset if isinstance(dataset, Dataset) else Dataset(Path(dataset))
+        self.dataset = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
         self.batch_size = batch_size
         self.seed = seed
         self.epochs = epochs  # None: sample endlessly (step-based training)
@@ -132,7 +132,6 @@ class TransitionStream(IterableDataset):
         g, n_consumers, delivered = self._role()
         info = get_worker_info()
         skip_rows = delivered * self.batch_size
-        paths = self.dataset.shard_paths()
         readers: dict[int, ShardReader] = {}
         pending: list[tuple[np.ndarray, ...]] = []
         pending_rows = 0
@@ -144,7 +143,7 @@ class TransitionStream(IterableDataset):
                     continue
                 for u in units:
                     if u.shard not in readers:
-                        readers[u.shard] = ShardReader(paths[u.shard])
+                        readers[u.shard] = self.dataset.shard_reader(u.shard)
                 cols = self._rows(readers, epoch, w, g, units)
                 if skip_rows:
                     cols = tuple(c[skip_rows:] for c in cols)

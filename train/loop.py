@@ -83,12 +83,12 @@ def open_member(run: RunDir, cfg: TrainConfig, device: torch.device) -> Member:
     for name, was, now in zip(("config hash", "shard hashes"), recorded, found, strict=True):
         if was and was != now:  # empty: a config written by hand or by smspace 0.1
             raise SmspaceError(
-                f"dataset {ds.folder} is not the one {run.path} was trained on (its {name} changed); "
+                f"dataset {ds.url} is not the one {run.path} was trained on (its {name} changed); "
                 "train a new run instead"
             )
-    for path, shard in zip(ds.shard_paths(), ds.manifest.shards, strict=True):
-        if path.stat().st_size != shard["bytes"]:
-            raise SmspaceError(f"shard {path} is not the size its manifest records")
+    for size, shard in zip(ds.shard_sizes(), ds.manifest.shards, strict=True):
+        if size != shard["bytes"]:
+            raise SmspaceError(f"shard {ds.url}/{shard['file']} is not the size its manifest records")
     stream = TransitionStream(ds, cfg.batch_size, seed=cfg.seed, window=cfg.shuffle_window)
     return Member(run, cfg, ds, stream, EvalData.load(ds, cfg.eval_transitions, device))
 

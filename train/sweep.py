@@ -14,7 +14,9 @@ from pathlib import Path
 from common.errors import SmspaceError
 from datagen.generate import generate
 from datagen.setups import get_setup
+from lake.catalog import check_lake
 from lake.manifest import load_manifest
+from lake.store import Store
 from train.config import TrainConfig
 from train.ensemble import train_ensemble
 from train.run_dir import CONFIG, RunDir
@@ -23,7 +25,7 @@ from train.run_dir import CONFIG, RunDir
 RESUMABLE = ("steps", "lr_decay_steps")
 
 
-def plan_runs(template: TrainConfig, datasets: list[Path], out: Path, overwrite: bool) -> list[tuple[RunDir, int]]:
+def plan_runs(template: TrainConfig, datasets: list[Store], out: Path, overwrite: bool) -> list[tuple[RunDir, int]]:
     """(run folder, step it is at) for every dataset; creates new folders, checks old ones."""
     plans = []
     for folder in datasets:
@@ -53,7 +55,7 @@ def sweep(
     modes: list[str],
     world_seeds: list[int],
     template: TrainConfig,
-    lake: Path,
+    lake: Store | str,
     out: Path,
     transitions: int | None = None,
     gen_workers: int = 1,
@@ -63,7 +65,7 @@ def sweep(
     spec = get_setup(setup)
     n = spec.default_transitions if transitions is None else transitions
     results = generate(lake, setup, modes, world_seeds, n, spec.default_shard_size, workers=gen_workers)
-    datasets = [lake / m.dataset_id for m, _ in results]
+    datasets = [check_lake(lake).child(m.dataset_id) for m, _ in results]
     plans = plan_runs(template, datasets, out, overwrite)
     by_step: dict[int, list[RunDir]] = defaultdict(list)
     for run, step in plans:

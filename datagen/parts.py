@@ -1,0 +1,148 @@
+"""The parts of a dataset: its shards and its regular-sampling file, each a pure function of the
+config, written whole in one step and checked whole before it is kept.
+
+Shard i draws from SeedSequence(world_seed, spawn_key=(1, mode, i)), so its bytes do not depend on
+the executor, the worker count or on which shards an interrupted run had already written. Every
+function here runs wherever the executor puts it (a local process, a Ray worker, a SLURM task) and
+returns a `PartRecord`, what the commit needs to write the manifest without reading the part again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.errors import SmspaceError
+from datagen.setups import MODES, World, draw_transitions, get_setup
+from lake.manifest import REGULAR_FILE, GenConfig, shard_name
+from lake.shards import Block, ShardReader, regular_sampling_bytes, shard_bytes
+from lake.store import Store
+
+REGULAR = -1  # the part number of the regular-sampling file; shards are 0 .. n_shards - 1
+_WORLDS: dict[tuple[str, int], World] = {}
+
+
+@dataclass(frozen=True)
+class PartRecord:
+    """A part as stored: what the manifest records of it, and the shapes the commit checks."""
+
+    part: int
+    file: str
+    bytes: int
+    sha256: str
+    count: int  # transitions (a shard) or samples (the regular file)
+    stats: dict[str, list[float]] | None  # m/s min and max (shards only)
+    n_motor: int
+    sensor_shape: tuple[int, ...] | None  # shards only
+    sensor_dtype: str | None
+
+
+def world_for(setup: str, seed: int) -> World:
+    """One world per (setup, seed) per process: building the SAPIEN room is not free."""
+    key = (setup, seed)
+    if key not in _WORLDS:
+        _WORLDS[key] = get_setup(setup).build(seed)
+    return _WORLDS[key]
+
+
+def shard_rng(cfg: GenConfig, i: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(cfg.world_seed, spawn_key=(1, MODES.index(cfg.mode), i)))
+
+
+def part_file(part: int) -> str:
+    return REGULAR_FILE if part == REGULAR else shard_name(part)
+
+
+def parts_of(cfg: GenConfig) -> list[int]:
+    return [*range(cfg.n_shards), REGULAR]
+
+
+def _stats(blocks: list[Block]) -> dict[str, list[float]]:
+    m = np.concatenate([b.transitions.m_t for b in blocks])
+    s = np.concatenate([b.transitions.s_t.reshape(len(b.transitions), -1) for b in blocks])
+    return {
+        "m_min": m.min(0).astype(float).tolist(),
+        "m_max": m.max(0).astype(float).tolist(),
+        "s_min": s.min(0).astype(float).tolist(),
+        "s_max": s.max(0).astype(float).tolist(),
+    }
+
+
+def _shard_record(part: int, data: bytes, blocks: list[Block], stats: dict[str, list[float]]) -> PartRecord:
+    tr = blocks[0].transitions
+    return PartRecord(
+        part,
+        shard_name(part),
+        len(data),
+        hashlib.sha256(data).hexdigest(),
+        sum(len(b.transitions) for b in blocks),
+        stats,
+        int(tr.m_t.shape[1]),
+        tuple(int(d) for d in tr.s_t.shape[1:]),
+        tr.s_t.dtype.name,
+    )
+
+
+def write_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord:
+    """Draw and store one part (a shard, or the regular sampling when part == REGULAR)."""
+    world = world_for(cfg.setup, cfg.world_seed)
+    if part == REGULAR:
+        m, p = world.regular_sampling()
+        data = regular_sampling_bytes(m, p)
+        folder.put(REGULAR_FILE, data)
+        return PartRecord(
+            part, REGULAR_FILE, len(data), hashlib.sha256(data).hexdigest(), len(m), None, m.shape[1], None, None
+        )
+    rng = shard_rng(cfg, part)
+    lo, hi = cfg.shard_range(part)
+    blocks = [
+        Block(start, draw_transitions(world, cfg.mode, rng, min(cfg.batch_size, hi - start)))
+        for start in range(lo, hi, cfg.batch_size)
+    ]
+    stats = _stats(blocks)
+    metadata = {
+        "dataset_id": cfg.dataset_id,
+        "shard_index": str(part),
+        "first_index": str(lo),
+        "transitions": str(hi - lo),
+        "config_hash": cfg.config_hash,
+        "stats": json.dumps(stats),
+    }
+    data = shard_bytes(blocks, metadata)
+    folder.put(shard_name(part), data)
+    return _shard_record(part, data, blocks, stats)
+
+
+def verify_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord | None:
+    """The record of a part found under its final name, or None unless it belongs to cfg and reads
+    back whole: every chunk CRC checked and every batch decoded, so a damaged part is redone."""
+    name = part_file(part)
+    try:
+        data = folder.read_bytes(name)
+    except (FileNotFoundError, SmspaceError):
+        return None
+    try:
+        with ShardReader(folder, name, data=data) as reader:
+            if part == REGULAR:
+                m, _ = reader.regular_sampling()
+                return PartRecord(
+                    part, name, len(data), hashlib.sha256(data).hexdigest(), len(m), None, m.shape[1], None, None
+                )
+            if reader.metadata().get("config_hash") != cfg.config_hash:
+                return None
+            blocks = list(reader.blocks())
+            stats = reader.stats()
+    except (SmspaceError, ValueError):
+        return None
+    lo, hi = cfg.shard_range(part)
+    if not blocks or sum(len(b.transitions) for b in blocks) != hi - lo:
+        return None
+    return _shard_record(part, data, blocks, stats)
+
+
+def preflight(setup: str) -> None:
+    """The setup's own check (Vulkan for the arm), where the parts will be drawn."""
+    get_setup(setup).preflight()

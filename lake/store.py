@@ -1,0 +1,393 @@
+"""Where a lake lives: a local folder, or a prefix on object storage reached through fsspec.
+
+A `Store` is one folder of the lake (the lake itself or a dataset in it). Readers and writers
+use only what both kinds can promise: whole objects written in one step (a rename locally, one
+PUT on S3), create-only writes for the commit point, ranged reads, listings. Nothing renames
+on object storage (docs/FORMAT.md, "Commit protocol").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fnmatch
+import hashlib
+import os
+import shutil
+import stat
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, BinaryIO
+
+from common.errors import DatasetCorrupt, SmspaceError
+from common.locks import hold_lock
+from lake.atomic import create_exclusive, remove_partials, sha256_file, write_atomic
+
+LOCAL_SCHEMES = ("", "file")
+READ_BLOCK = 1 << 16  # the summary of a shard comes down in one or two requests of this size
+
+
+def is_url(ref: str | Path) -> bool:
+    return isinstance(ref, str) and "://" in ref
+
+
+def check_name(folder: str, name: str) -> None:
+    """A file of a folder is a plain name: nothing a manifest names can leave the folder."""
+    if "/" in name or "\\" in name or name in ("", ".", ".."):
+        raise DatasetCorrupt(f"{folder}/{name}: not a file name inside the dataset")
+
+
+class Store(ABC):
+    """One folder of a lake; every name is a plain file name in it (no '/')."""
+
+    url: str
+
+    def __str__(self) -> str:
+        return self.url
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.url!r})"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Store) and other.url == self.url
+
+    def __hash__(self) -> int:
+        return hash(self.url)
+
+    @property
+    @abstractmethod
+    def name(self) -> str: ...
+
+    @abstractmethod
+    def child(self, name: str) -> Store: ...
+
+    @abstractmethod
+    def is_folder(self) -> bool:
+        """Whether this folder holds anything (object stores have no empty folders)."""
+
+    @abstractmethod
+    def is_file(self) -> bool:
+        """Whether this folder's own name is taken by a file."""
+
+    @abstractmethod
+    def make(self) -> None:
+        """Create this folder (a no-op on object storage)."""
+
+    @abstractmethod
+    def size(self, name: str) -> int:
+        """Bytes of a regular file; FileNotFoundError when absent, DatasetCorrupt when not regular."""
+
+    def exists(self, name: str) -> bool:
+        try:
+            self.size(name)
+        except (FileNotFoundError, DatasetCorrupt):
+            return False
+        return True
+
+    @abstractmethod
+    def read_bytes(self, name: str) -> bytes: ...
+
+    @abstractmethod
+    def read_range(self, name: str, start: int, length: int) -> bytes:
+        """Bytes [start, start + length): one request on object storage."""
+
+    @abstractmethod
+    def open(self, name: str) -> BinaryIO:
+        """A seekable reader (for an MCAP summary); small reads come from READ_BLOCK-sized requests."""
+
+    @abstractmethod
+    def put(self, name: str, data: bytes) -> None:
+        """Write a whole file at once: readers see the old one or the new one, never a part."""
+
+    @abstractmethod
+    def create(self, name: str, data: bytes) -> None:
+        """Write a whole file only if none exists: FileExistsError otherwise (the commit point)."""
+
+    @abstractmethod
+    def delete(self, name: str) -> None:
+        """Remove a file; an absent one is not an error."""
+
+    @abstractmethod
+    def fingerprints(self, pattern: str) -> dict[str, str]:
+        """{relative path: version tag} of the files matching a glob such as '*/manifest.json'; the
+        tag changes whenever the file is rewritten (ETag on S3, size and mtime locally)."""
+
+    def list(self, pattern: str) -> list[str]:
+        return sorted(self.fingerprints(pattern))
+
+    def sha256(self, name: str) -> str:
+        h = hashlib.sha256()
+        with self.open_stream(name) as fh:
+            for block in iter(lambda: fh.read(1 << 22), b""):
+                h.update(block)
+        return h.hexdigest()
+
+    @abstractmethod
+    def open_stream(self, name: str) -> BinaryIO:
+        """A sequential reader with large requests (hashing, whole-file reads)."""
+
+    def lock(self, name: str, busy: str, wait: bool) -> contextlib.AbstractContextManager:
+        """Mutual exclusion between writers where the store has it (local folders); object storage
+        relies on the create-only commit instead."""
+        return contextlib.nullcontext()
+
+    def remove_partials(self) -> None:  # noqa: B027 - deliberately nothing to do by default
+        """Drop what killed writers left; object storage never has partial objects."""
+
+    def free_bytes(self) -> int | None:
+        """Free space for new files, or None where there is no such limit to check."""
+        return None
+
+
+class LocalStore(Store):
+    """A folder on this machine's filesystem: writes go through a temporary name and a rename."""
+
+    def __init__(self, path: Path | str):
+        self.path = Path(path)
+        self.url = str(self.path)
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    def child(self, name: str) -> LocalStore:
+        check_name(self.url, name)
+        return LocalStore(self.path / name)
+
+    def file(self, name: str) -> Path:
+        """A regular file directly inside this folder, never a link, device or FIFO."""
+        check_name(self.url, name)
+        path = self.path / name
+        st = os.lstat(path)  # FileNotFoundError propagates: a missing file is the caller's to report
+        if not stat.S_ISREG(st.st_mode):
+            raise DatasetCorrupt(f"{path}: not a regular file (a link, folder or special file)")
+        return path
+
+    def is_folder(self) -> bool:
+        return self.path.is_dir()
+
+    def is_file(self) -> bool:
+        return self.path.exists() and not self.path.is_dir()
+
+    def make(self) -> None:
+        if self.is_file():
+            raise SmspaceError(f"{self.path} exists and is not a folder")
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise SmspaceError(f"cannot create folder {self.path}: {e.strerror or e}") from e
+
+    def size(self, name: str) -> int:
+        return self.file(name).stat().st_size
+
+    def read_bytes(self, name: str) -> bytes:
+        return self.file(name).read_bytes()
+
+    def read_range(self, name: str, start: int, length: int) -> bytes:
+        with open(self.file(name), "rb") as fh:
+            return os.pread(fh.fileno(), length, start)
+
+    def open(self, name: str) -> BinaryIO:
+        return open(self.file(name), "rb")
+
+    open_stream = open
+
+    def sha256(self, name: str) -> str:
+        return sha256_file(self.file(name))
+
+    def put(self, name: str, data: bytes) -> None:
+        check_name(self.url, name)
+        write_atomic(self.path / name, data)
+
+    def create(self, name: str, data: bytes) -> None:
+        check_name(self.url, name)
+        create_exclusive(self.path / name, data)
+
+    def delete(self, name: str) -> None:
+        check_name(self.url, name)
+        (self.path / name).unlink(missing_ok=True)
+
+    def fingerprints(self, pattern: str) -> dict[str, str]:
+        out = {}
+        for path in self.path.glob(pattern):
+            st = path.lstat()
+            if stat.S_ISREG(st.st_mode):
+                out[path.relative_to(self.path).as_posix()] = f"{st.st_size}-{st.st_mtime_ns}"
+        return out
+
+    def lock(self, name: str, busy: str, wait: bool) -> contextlib.AbstractContextManager:
+        return _held(self.path / name, busy, wait)
+
+    def remove_partials(self) -> None:
+        remove_partials(self.path)
+
+    def free_bytes(self) -> int | None:
+        probe = self.path
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        return shutil.disk_usage(probe).free
+
+
+@contextlib.contextmanager
+def _held(path: Path, busy: str, wait: bool) -> Iterator[None]:
+    lock = hold_lock(path, busy, wait)
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+class RemoteStore(Store):
+    """A prefix on an fsspec filesystem (s3://, gs://, memory://…): one object per file, no rename."""
+
+    def __init__(self, fs: Any, root: str, url: str):
+        self.fs, self.root, self.url = fs, root.rstrip("/"), url.rstrip("/")
+
+    @property
+    def name(self) -> str:
+        return self.root.rsplit("/", 1)[-1]
+
+    def child(self, name: str) -> RemoteStore:
+        check_name(self.url, name)
+        return RemoteStore(self.fs, f"{self.root}/{name}", f"{self.url}/{name}")
+
+    def _key(self, name: str) -> str:
+        check_name(self.url, name)
+        return f"{self.root}/{name}"
+
+    def is_folder(self) -> bool:
+        """Whether the prefix holds anything; one LIST request, which also proves the bucket exists,
+        the credentials work and the endpoint answers (each failure named in one line)."""
+        with remote_errors(self.url):
+            try:
+                return bool(self.fs.ls(self.root, detail=False, refresh=True))
+            except FileNotFoundError as e:
+                if _missing_bucket(e):
+                    raise
+                return False
+
+    def is_file(self) -> bool:
+        self.is_folder()  # a missing bucket or bad credentials fail here, not as "no such file"
+        with remote_errors(self.url):
+            return self.fs.isfile(self.root)
+
+    def make(self) -> None:
+        if self.is_file():
+            raise SmspaceError(f"{self.url} exists and is not a folder")
+
+    def size(self, name: str) -> int:
+        key = self._key(name)
+        with remote_errors(self.url):
+            info = self.fs.info(key, refresh=True)
+        if info.get("type") != "file":
+            raise DatasetCorrupt(f"{self.url}/{name}: not a file")
+        return int(info["size"])
+
+    def read_bytes(self, name: str) -> bytes:
+        with remote_errors(self.url):
+            return self.fs.cat_file(self._key(name))
+
+    def read_range(self, name: str, start: int, length: int) -> bytes:
+        with remote_errors(self.url):
+            return self.fs.cat_file(self._key(name), start=start, end=start + length)
+
+    def open(self, name: str) -> BinaryIO:
+        with remote_errors(self.url):
+            return self.fs.open(self._key(name), "rb", block_size=READ_BLOCK, cache_type="readahead")
+
+    def open_stream(self, name: str) -> BinaryIO:
+        with remote_errors(self.url):
+            return self.fs.open(self._key(name), "rb", block_size=1 << 24, cache_type="readahead")
+
+    def put(self, name: str, data: bytes) -> None:
+        with remote_errors(self.url):
+            self.fs.pipe_file(self._key(name), data)
+
+    def create(self, name: str, data: bytes) -> None:
+        key = self._key(name)
+        with remote_errors(self.url, create=True):
+            self.fs.pipe_file(key, data, mode="create")  # If-None-Match: *, refused if the key exists
+
+    def delete(self, name: str) -> None:
+        key = self._key(name)
+        with remote_errors(self.url), contextlib.suppress(FileNotFoundError):
+            self.fs.rm_file(key)
+
+    def fingerprints(self, pattern: str) -> dict[str, str]:
+        with remote_errors(self.url):
+            self.fs.invalidate_cache(self.root)
+            found = self.fs.glob(f"{self.root}/{pattern}", detail=True)
+        prefix = len(self.root) + 1
+        return {
+            path[prefix:]: str(info.get("ETag") or info.get("etag") or f"{info.get('size')}-{info.get('mtime')}")
+            for path, info in found.items()
+            if fnmatch.fnmatch(path[prefix:], pattern) and info.get("type", "file") == "file"
+        }
+
+
+@contextlib.contextmanager
+def remote_errors(url: str, create: bool = False) -> Iterator[None]:
+    """Whatever s3fs, botocore or aiohttp raise becomes one line naming the place; a missing file
+    stays FileNotFoundError (callers decide what absence means) and a refused create FileExistsError."""
+    try:
+        yield
+    except FileNotFoundError as e:
+        if _missing_bucket(e):
+            raise SmspaceError(f"{url}: no such bucket") from None
+        raise
+    except FileExistsError:
+        raise
+    except PermissionError as e:
+        raise SmspaceError(f"{url}: access denied ({_short(e)}); check the credentials (AWS_ACCESS_KEY_ID…)") from None
+    except OSError as e:
+        if create and _precondition_failed(e):
+            raise FileExistsError(url) from None
+        raise SmspaceError(f"{url}: {_short(e)}") from None
+    except Exception as e:  # botocore/aiohttp errors are not OSError subclasses
+        if create and _precondition_failed(e):
+            raise FileExistsError(url) from None
+        raise SmspaceError(f"{url}: {_explain(e)}") from None
+
+
+def _short(e: BaseException) -> str:
+    return " ".join(str(e).split())[:200] or type(e).__name__
+
+
+def _missing_bucket(e: BaseException) -> bool:
+    return "NoSuchBucket" in repr(e) or "bucket does not exist" in str(e).lower()
+
+
+def _precondition_failed(e: BaseException) -> bool:
+    text = repr(e)
+    return "PreconditionFailed" in text or "412" in text or "ConditionalRequestConflict" in text
+
+
+def _explain(e: BaseException) -> str:
+    name = type(e).__name__
+    if "Credential" in name or "InvalidAccessKeyId" in repr(e) or "SignatureDoesNotMatch" in repr(e):
+        return f"access denied ({name}); check the credentials (AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY)"
+    if "Connect" in name or "Endpoint" in name:
+        return f"cannot reach the storage endpoint ({_short(e)}); check AWS_ENDPOINT_URL"
+    return f"{name}: {_short(e)}"
+
+
+def open_store(ref: str | Path) -> Store:
+    """A folder of the lake from a path or URL: plain paths and file:// stay local (rename-based
+    writes, locks), any other fsspec URL is object storage (s3:// needs `pip install smspace[s3]`)."""
+    if isinstance(ref, Path) or not is_url(ref):
+        return LocalStore(Path(ref))
+    scheme = ref.split("://", 1)[0].lower()
+    if scheme in LOCAL_SCHEMES:
+        return LocalStore(Path(ref.split("://", 1)[1]))
+    import fsspec
+
+    try:
+        fs, root = fsspec.url_to_fs(ref)
+    except ImportError:
+        hint = "pip install 'smspace[s3]'" if scheme in ("s3", "s3a") else f"install the fsspec package for {scheme}://"
+        raise SmspaceError(f"{ref}: the {scheme}:// scheme needs a package that is not installed; {hint}") from None
+    except ValueError as e:
+        raise SmspaceError(f"{ref}: unknown storage scheme {scheme!r} ({_short(e)})") from None
+    if not root.strip("/"):
+        raise SmspaceError(f"{ref}: give a bucket (and optionally a prefix), e.g. s3://bucket/lake")
+    return RemoteStore(fs, root, f"{scheme}://{root}")

@@ -1,0 +1,231 @@
+"""The lake on object storage: a moto S3 server on 127.0.0.1, the real CLIs as subprocesses."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import BIN
+from tests.servers import free_port, moto_s3, stop_group
+
+pytestmark = pytest.mark.slow
+
+GRID = ["--setup", "grid", "--transitions", "6000", "--shard-size", "2500", "--seed", "3"]
+
+
+@pytest.fixture(scope="module")
+def s3(tmp_path_factory):
+    with moto_s3(tmp_path_factory.mktemp("moto") / "moto.log") as env:
+        yield env
+
+
+def cli(env: dict[str, str], *args, timeout: float = 300) -> subprocess.CompletedProcess:
+    cmd = [str(BIN / str(args[0])), *map(str, args[1:])]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env={**os.environ, **env})
+
+
+def s3fs_for(env: dict[str, str]):
+    import s3fs
+
+    return s3fs.S3FileSystem(
+        endpoint_url=env["AWS_ENDPOINT_URL"], key=env["AWS_ACCESS_KEY_ID"], secret=env["AWS_SECRET_ACCESS_KEY"]
+    )
+
+
+def remote_files(env, prefix: str) -> dict[str, bytes]:
+    fs = s3fs_for(env)
+    return {p[len(prefix) + 1 :]: fs.cat_file(p) for p in fs.find(prefix)}
+
+
+def local_files(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def dataset_files(files: dict[str, bytes], dataset: str) -> dict[str, bytes]:
+    return {k: v for k, v in files.items() if k.startswith(f"{dataset}/")}
+
+
+def test_grid_all_modes_on_s3_equal_local_and_read_back(s3, grid_lake, tmp_path):
+    lake = "s3://lake/grid"
+    gen = cli(s3, "smgen", "generate", *GRID, "--mode", "all", "--lake", lake)
+    assert gen.returncode == 0, gen.stderr
+    assert gen.stdout.count("written") == 3
+    remote, local = remote_files(s3, "lake/grid"), local_files(grid_lake)
+    for mode in ("MEM", "MM", "MME"):
+        ds = f"grid-seed3-{mode}"
+        got, want = dataset_files(remote, ds), dataset_files(local, ds)
+        assert got.keys() == want.keys() and len(got) == 5  # 3 shards, regular sampling, manifest
+        for name in want:  # shards, regular file and manifest alike: the same bytes
+            assert got[name] == want[name], name
+    assert "catalog.parquet" in remote
+
+    listing = cli(s3, "smgen", "ls", "--lake", lake, "--json")
+    assert listing.returncode == 0, listing.stderr
+    assert sorted(json.loads(line)["id"] for line in listing.stdout.splitlines()) == [
+        "grid-seed3-MEM", "grid-seed3-MM", "grid-seed3-MME"
+    ]
+    info = cli(s3, "smgen", "info", "grid-seed3-MM", "--lake", lake, "--json")
+    assert info.returncode == 0 and json.loads(info.stdout)["path"] == "s3://lake/grid/grid-seed3-MM"
+    ok = cli(s3, "smgen", "validate", "grid-seed3-MEM", "s3://lake/grid/grid-seed3-MME", "--lake", lake)
+    assert ok.returncode == 0 and ok.stdout.split() == ["grid-seed3-MEM:", "ok", "grid-seed3-MME:", "ok"], ok.stdout
+
+    # validate fetches the objects: a flipped byte in the middle of a shard is found remotely
+    fs = s3fs_for(s3)
+    key = "lake/grid/grid-seed3-MM/shard-00001.mcap"
+    good = fs.cat_file(key)
+    bad = bytearray(good)
+    bad[len(bad) // 2] ^= 0xFF
+    fs.pipe_file(key, bytes(bad))
+    try:
+        broken = cli(s3, "smgen", "validate", "grid-seed3-MM", "--lake", lake)
+        assert broken.returncode == 1 and "shard-00001.mcap: sha256 differs" in broken.stdout
+    finally:
+        fs.pipe_file(key, good)
+
+    export = cli(s3, "smgen", "export", "grid-seed3-MM", "--lake", lake, "--format", "parquet", "--out",
+                 tmp_path / "mm.parquet", "--limit", 100)
+    assert export.returncode == 0, export.stderr
+
+
+def test_training_from_s3_equals_training_from_the_folder(s3, grid_lake, tmp_path):
+    lake = "s3://lake/train"
+    assert cli(s3, "smgen", "generate", *GRID, "--mode", "MME", "--lake", lake).returncode == 0
+    common = ["--steps", 200, "--eval-every", 100, "--batch-size", 64, "--threads", 1]
+    remote = cli(s3, "smtrain", "fit", f"{lake}/grid-seed3-MME", *common, "--out", tmp_path / "remote")
+    local = cli(s3, "smtrain", "fit", grid_lake / "grid-seed3-MME", *common, "--out", tmp_path / "local")
+    assert remote.returncode == 0, remote.stderr
+    assert local.returncode == 0, local.stderr
+    # the same losses and metrics, to the last digit printed
+    assert remote.stdout.splitlines()[-1] == local.stdout.splitlines()[-1]
+    config = json.loads((tmp_path / "remote" / "config.json").read_text())
+    assert config["dataset"] == f"{lake}/grid-seed3-MME"
+    import pyarrow.parquet as pq
+
+    a, b = (pq.read_table(tmp_path / name / "metrics.parquet").drop_columns(["elapsed_s"]) for name in ("remote", "local"))
+    assert a.num_rows == 3 and json.dumps(a.to_pylist()) == json.dumps(b.to_pylist())  # NaN-safe, bit for bit
+
+
+def _wait_for(predicate, timeout: float = 120, every: float = 0.2):
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(every)
+
+
+def test_killed_generation_on_s3_is_invisible_then_completes_byte_identically(s3, tmp_path):
+    args = ["--setup", "grid", "--mode", "MEM", "--transitions", "24000", "--shard-size", "1000", "--seed", "7"]
+    lake, fs = "s3://lake/killed", s3fs_for(s3)
+    proc = subprocess.Popen(
+        [str(BIN / "smgen"), "generate", *args, "--workers", "1", "--lake", lake],
+        env={**os.environ, **s3},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        _wait_for(lambda: len(fs.glob("lake/killed/grid-seed7-MEM/shard-*", refresh=True)) >= 3)
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+    finally:
+        stop_group(proc)
+    shards = fs.glob("lake/killed/grid-seed7-MEM/shard-*", refresh=True)
+    assert 3 <= len(shards) < 24 and not fs.exists("lake/killed/grid-seed7-MEM/manifest.json")
+    listing = cli(s3, "smgen", "ls", "--lake", lake, "--json")
+    assert listing.returncode == 0 and listing.stdout == ""
+    info = cli(s3, "smgen", "info", "grid-seed7-MEM", "--lake", lake)
+    assert info.returncode == 2 and "incomplete" in info.stderr
+    fit = cli(s3, "smtrain", "fit", f"{lake}/grid-seed7-MEM", "--steps", 10, "--out", tmp_path / "run")
+    assert fit.returncode == 2 and "incomplete" in fit.stderr
+
+    again = cli(s3, "smgen", "generate", *args, "--lake", lake)
+    assert again.returncode == 0 and "written" in again.stdout, again.stderr
+    clean = tmp_path / "clean"
+    assert cli(s3, "smgen", "generate", *args, "--lake", clean).returncode == 0
+    remote = dataset_files(remote_files(s3, "lake/killed"), "grid-seed7-MEM")
+    assert remote == dataset_files(local_files(clean), "grid-seed7-MEM")
+    assert "grid-seed7-MEM/generation.json" not in remote
+
+
+def test_two_generators_on_one_s3_dataset_commit_once(s3):
+    args = ["--setup", "grid", "--mode", "MM", "--transitions", "12000", "--shard-size", "1000", "--seed", "8"]
+    lake = "s3://lake/race"
+    procs = [
+        subprocess.Popen(
+            [str(BIN / "smgen"), "generate", *args, "--workers", "1", "--lake", lake],
+            env={**os.environ, **s3},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(2)
+    ]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    states = sorted(out.split("\t")[-1].strip() for out, _ in outs)
+    assert states == ["exists", "written"]  # exactly one commit; the other found it complete
+    check = cli(s3, "smgen", "validate", "grid-seed8-MM", "--lake", lake)
+    assert check.returncode == 0, check.stdout
+
+
+def test_the_commit_is_create_only_on_s3(s3, monkeypatch):
+    """Two commits of one dataset: the second finds the first and keeps it (nothing overwritten)."""
+    for key, value in s3.items():
+        monkeypatch.setenv(key, value)
+    from datagen.generate import commit_dataset, generate, plan_dataset
+    from lake.manifest import GenConfig
+    from lake.store import open_store
+
+    lake = open_store("s3://lake/commit")
+    (manifest, written), = generate(lake, "grid", ["MEM"], [9], 3000, 1000)
+    assert written
+    cfg = GenConfig("grid", "MEM", 9, 3000, 1000)
+    folder = lake.child(cfg.dataset_id)
+    first = folder.read_bytes("manifest.json")
+    folder.delete("manifest.json")
+    plan = plan_dataset(lake, cfg, overwrite=False)
+    assert plan.todo == [] and len(plan.found) == 4  # every part found whole and kept
+    again, won = commit_dataset(folder, cfg, plan.found)
+    assert won and again.shards == manifest.shards
+    later, won = commit_dataset(folder, cfg, plan.found)
+    assert not won and later.shards == manifest.shards
+    assert json.loads(folder.read_bytes("manifest.json"))["shards"] == json.loads(first)["shards"]
+
+
+def test_a_small_arm_dataset_on_s3_equals_local(s3, tmp_path):
+    args = ["--setup", "arm", "--mode", "MEM", "--transitions", "256", "--shard-size", "128", "--seed", "1"]
+    remote = cli(s3, "smgen", "generate", *args, "--lake", "s3://lake/arm", timeout=600)
+    assert remote.returncode == 0, remote.stderr
+    local = cli(s3, "smgen", "generate", *args, "--lake", tmp_path / "lake", timeout=600)
+    assert local.returncode == 0, local.stderr
+    got = dataset_files(remote_files(s3, "lake/arm"), "arm-seed1-MEM")
+    assert got == dataset_files(local_files(tmp_path / "lake"), "arm-seed1-MEM") and len(got) == 4
+    assert cli(s3, "smgen", "validate", "s3://lake/arm/arm-seed1-MEM").returncode == 0
+
+
+def _one_line_exit_2(proc: subprocess.CompletedProcess, *words: str) -> None:
+    assert proc.returncode == 2, (proc.stdout, proc.stderr)
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr, proc.stderr
+    for word in words:
+        assert word in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("command", ["ls", "generate"])
+def test_bad_storage_is_one_line_and_writes_nothing(s3, command):
+    gen = ["generate", "--setup", "grid", "--mode", "MM", "--transitions", "100"]
+    args = (lambda lake: ["ls", "--lake", lake]) if command == "ls" else (lambda lake: [*gen, "--lake", lake])
+    before = remote_files(s3, "lake")
+
+    _one_line_exit_2(cli(s3, "smgen", *args("foo://bucket/lake")), "unknown storage scheme")
+    _one_line_exit_2(cli(s3, "smgen", *args("s3://no-such-bucket/lake")), "no such bucket")
+    wrong = s3 | {"AWS_ACCESS_KEY_ID": "AKIAWRONGWRONGWRONG1", "AWS_SECRET_ACCESS_KEY": "wrong"}
+    _one_line_exit_2(cli(wrong, "smgen", *args("s3://lake/bad")), "access denied")
+    closed = s3 | {"AWS_ENDPOINT_URL": f"http://127.0.0.1:{free_port()}"}
+    _one_line_exit_2(cli(closed, "smgen", *args("s3://lake/bad")), "cannot reach")
+
+    assert remote_files(s3, "lake") == before
