@@ -19,11 +19,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from datagen.generate import generate  # noqa: E402
-from lake.dataset import Dataset  # noqa: E402
-from lake.store import open_store  # noqa: E402
-from tests.servers import moto_s3  # noqa: E402
-from train.loader import TransitionStream  # noqa: E402
+from datagen.generate import generate
+from lake.dataset import Dataset
+from lake.store import open_store
+from tests.servers import moto_s3
+from train.loader import TransitionStream
 
 
 def stream_rate(ds: Dataset, batch_size: int, epochs: int) -> tuple[float, int]:

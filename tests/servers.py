@@ -18,7 +18,7 @@ import psutil
 
 from tests.conftest import BIN
 
-LOOPBACK = ("127.0.0.1", "[::1]", "::1")
+LOOPBACK = ("127.0.0.1", "[::1]", "[::ffff:127.0.0.1]")  # the last: IPv4 loopback on a dual-stack socket
 
 
 def free_port() -> int:
@@ -95,16 +95,25 @@ def moto_s3(log: Path) -> Iterator[dict[str, str]]:
             assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
             time.sleep(0.1)
         base = {"AWS_EC2_METADATA_DISABLED": "true", "AWS_DEFAULT_REGION": "us-east-1", "AWS_ENDPOINT_URL": endpoint}
-        iam = boto3.client("iam", endpoint_url=endpoint, aws_access_key_id="bootstrap", aws_secret_access_key="x",
-                           region_name="us-east-1")
+        iam = boto3.client(
+            "iam",
+            endpoint_url=endpoint,
+            aws_access_key_id="bootstrap",
+            aws_secret_access_key="x",
+            region_name="us-east-1",
+        )
         iam.create_user(UserName="smspace")
         policy = {"Version": "2012-10-17", "Statement": [{"Effect": "Allow", "Action": "*", "Resource": "*"}]}
         iam.put_user_policy(UserName="smspace", PolicyName="all", PolicyDocument=json.dumps(policy))
         key = iam.create_access_key(UserName="smspace")["AccessKey"]
         client_env = base | {"AWS_ACCESS_KEY_ID": key["AccessKeyId"], "AWS_SECRET_ACCESS_KEY": key["SecretAccessKey"]}
-        boto3.client("s3", endpoint_url=endpoint, aws_access_key_id=client_env["AWS_ACCESS_KEY_ID"],
-                     aws_secret_access_key=client_env["AWS_SECRET_ACCESS_KEY"],
-                     region_name="us-east-1").create_bucket(Bucket="lake")
+        boto3.client(
+            "s3",
+            endpoint_url=endpoint,
+            aws_access_key_id=client_env["AWS_ACCESS_KEY_ID"],
+            aws_secret_access_key=client_env["AWS_SECRET_ACCESS_KEY"],
+            region_name="us-east-1",
+        ).create_bucket(Bucket="lake")
         assert assert_loopback_only(tree(proc.pid)) >= 1  # the server itself, on 127.0.0.1 only
         yield client_env | {"SMSPACE_TEST_MOTO_PID": str(proc.pid)}
     finally:

@@ -36,7 +36,9 @@ def test_ranks_then_finalize_give_the_bytes_of_one_command(grid_lake, tmp_path):
 def test_finalize_with_a_rank_missing_names_the_shard_and_commits_nothing(tmp_path):
     lake = tmp_path / "lake"
     for rank in (0, 1):
-        assert smgen("generate", *GRID, "--mode", "MM", "--rank", rank, "--world-size", 3, "--lake", lake).exit_code == 0
+        assert (
+            smgen("generate", *GRID, "--mode", "MM", "--rank", rank, "--world-size", 3, "--lake", lake).exit_code == 0
+        )
     result = smgen("finalize", "grid-seed3-MM", "--lake", lake)
     assert result.exit_code == 2
     assert "shard-00002.mcap is missing" in result.output and result.output.count("\n") == 1
@@ -113,7 +115,10 @@ def test_ray_runs_the_arm_preflight_on_a_worker_not_the_driver(ray_cluster, tmp_
     no_vulkan = {**os.environ, "RAY_ADDRESS": cluster.address, "VK_ICD_FILENAMES": str(tmp_path / "none.json")}
     ray_run = subprocess.run(
         [str(BIN / "smgen"), "generate", *args, "--executor", "ray", "--lake", str(tmp_path / "ray")],
-        capture_output=True, text=True, env=no_vulkan, timeout=600,
+        capture_output=True,
+        text=True,
+        env=no_vulkan,
+        timeout=600,
     )
     assert ray_run.returncode == 0, ray_run.stderr
     local = smgen("generate", *args, "--lake", tmp_path / "local")
@@ -123,6 +128,9 @@ def test_ray_runs_the_arm_preflight_on_a_worker_not_the_driver(ray_cluster, tmp_
     # and without Ray the same driver refuses in one line before writing anything
     refused = subprocess.run(
         [str(BIN / "smgen"), "generate", *args, "--lake", str(tmp_path / "refused")],
-        capture_output=True, text=True, env=no_vulkan, timeout=300,
+        capture_output=True,
+        text=True,
+        env=no_vulkan,
+        timeout=300,
     )
     assert refused.returncode == 2 and not (tmp_path / "refused").exists()

@@ -68,7 +68,9 @@ def test_grid_all_modes_on_s3_equal_local_and_read_back(s3, grid_lake, tmp_path)
     listing = cli(s3, "smgen", "ls", "--lake", lake, "--json")
     assert listing.returncode == 0, listing.stderr
     assert sorted(json.loads(line)["id"] for line in listing.stdout.splitlines()) == [
-        "grid-seed3-MEM", "grid-seed3-MM", "grid-seed3-MME"
+        "grid-seed3-MEM",
+        "grid-seed3-MM",
+        "grid-seed3-MME",
     ]
     info = cli(s3, "smgen", "info", "grid-seed3-MM", "--lake", lake, "--json")
     assert info.returncode == 0 and json.loads(info.stdout)["path"] == "s3://lake/grid/grid-seed3-MM"
@@ -88,8 +90,20 @@ def test_grid_all_modes_on_s3_equal_local_and_read_back(s3, grid_lake, tmp_path)
     finally:
         fs.pipe_file(key, good)
 
-    export = cli(s3, "smgen", "export", "grid-seed3-MM", "--lake", lake, "--format", "parquet", "--out",
-                 tmp_path / "mm.parquet", "--limit", 100)
+    export = cli(
+        s3,
+        "smgen",
+        "export",
+        "grid-seed3-MM",
+        "--lake",
+        lake,
+        "--format",
+        "parquet",
+        "--out",
+        tmp_path / "mm.parquet",
+        "--limit",
+        100,
+    )
     assert export.returncode == 0, export.stderr
 
 
@@ -107,7 +121,9 @@ def test_training_from_s3_equals_training_from_the_folder(s3, grid_lake, tmp_pat
     assert config["dataset"] == f"{lake}/grid-seed3-MME"
     import pyarrow.parquet as pq
 
-    a, b = (pq.read_table(tmp_path / name / "metrics.parquet").drop_columns(["elapsed_s"]) for name in ("remote", "local"))
+    a, b = (
+        pq.read_table(tmp_path / name / "metrics.parquet").drop_columns(["elapsed_s"]) for name in ("remote", "local")
+    )
     assert a.num_rows == 3 and json.dumps(a.to_pylist()) == json.dumps(b.to_pylist())  # NaN-safe, bit for bit
 
 
@@ -182,7 +198,7 @@ def test_the_commit_is_create_only_on_s3(s3, monkeypatch):
     from lake.store import open_store
 
     lake = open_store("s3://lake/commit")
-    (manifest, written), = generate(lake, "grid", ["MEM"], [9], 3000, 1000)
+    ((manifest, written),) = generate(lake, "grid", ["MEM"], [9], 3000, 1000)
     assert written
     cfg = GenConfig("grid", "MEM", 9, 3000, 1000)
     folder = lake.child(cfg.dataset_id)
