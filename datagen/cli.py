@@ -106,6 +106,11 @@ def generate(
             f"rank {rank} of {world_size}: parts written; once every rank is done: smgen finalize {ids}", err=True
         )
         return
+    _echo_committed(store, results)
+
+
+def _echo_committed(store, results) -> None:
+    """One line per dataset: id, where it is, and whether this command committed it."""
     for manifest, written in results:
         click.echo(f"{manifest.dataset_id}\t{store.child(manifest.dataset_id)}\t{'written' if written else 'exists'}")
 
@@ -120,8 +125,7 @@ def finalize(datasets, lake) -> None:
     from lake.dataset import open_lake, resolve_dataset
 
     store = open_lake(lake)
-    for manifest, written in run(store, [resolve_dataset(ref, store) for ref in datasets]):
-        click.echo(f"{manifest.dataset_id}\t{store.child(manifest.dataset_id)}\t{'written' if written else 'exists'}")
+    _echo_committed(store, run(store, [resolve_dataset(ref, store) for ref in datasets]))
 
 
 @main.command("ls")

@@ -245,3 +245,38 @@ def test_bad_storage_is_one_line_and_writes_nothing(s3, command):
     _one_line_exit_2(cli(closed, "smgen", *args("s3://lake/bad")), "cannot reach")
 
     assert remote_files(s3, "lake") == before
+
+
+def test_every_other_command_takes_an_s3_dataset(s3, tmp_path):
+    """preview, view --save and smtrain sweep on a lake that lives on S3."""
+    lake = "s3://lake/more"
+    sweep = cli(
+        s3,
+        "smtrain",
+        "sweep",
+        "--setup",
+        "grid",
+        "--worlds",
+        1,
+        "--seed",
+        5,
+        "--modes",
+        "MM",
+        "--transitions",
+        3000,
+        "--steps",
+        20,
+        "--eval-every",
+        10,
+        "--lake",
+        lake,
+        "--out",
+        tmp_path / "runs",
+    )
+    assert sweep.returncode == 0, sweep.stderr
+    config = json.loads(next((tmp_path / "runs").glob("*/config.json")).read_text())
+    assert config["dataset"] == f"{lake}/grid-seed5-MM"
+    preview = cli(s3, "smgen", "preview", "grid-seed5-MM", "--lake", lake, "--out", tmp_path / "png", "--frames", 4)
+    assert preview.returncode == 0 and any((tmp_path / "png").glob("*.png")), preview.stderr
+    view = cli(s3, "smgen", "view", "grid-seed5-MM", "--lake", lake, "--limit", 200, "--save", tmp_path / "v.rrd")
+    assert view.returncode == 0 and (tmp_path / "v.rrd").stat().st_size > 0, view.stderr
