@@ -2,7 +2,7 @@
 local lake and on a local S3 server (moto, 127.0.0.1), streamed by TransitionStream.
 
 Prints one JSON object: transitions/s for each, and for S3 the HTTP requests and bytes per 1000
-transitions (counted on the client, every request s3fs sends). The moto server runs on this
+transitions (counted on the client: every request s3fs sends, and the body bytes of its GETs). The moto server runs on this
 machine, so the figures measure our request pattern, not a network.
 Usage: python benchmarks/bench_s3.py [--transitions 65536] [--batch-size 64] [--epochs 2]
 """
@@ -46,7 +46,9 @@ class RequestCounter:
     def _sent(self, **_) -> None:
         self.requests += 1
 
-    def _received(self, http_response=None, **_) -> None:
+    def _received(self, http_response=None, model=None, **_) -> None:
+        if getattr(model, "name", "") != "GetObject":  # a HEAD's content-length is the object's, not sent
+            return
         length = getattr(http_response, "headers", {}).get("content-length") if http_response is not None else None
         self.bytes += int(length or 0)
 
