@@ -134,3 +134,36 @@ def test_ray_runs_the_arm_preflight_on_a_worker_not_the_driver(ray_cluster, tmp_
         timeout=300,
     )
     assert refused.returncode == 2 and not (tmp_path / "refused").exists()
+
+
+def _processes_marked(marker: str) -> list[int]:
+    import psutil
+
+    found = []
+    for proc in psutil.process_iter():
+        try:
+            if proc.environ().get("SMSPACE_TEST_MARK") == marker:
+                found.append(proc.pid)
+        except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
+            continue
+    return found
+
+
+@pytest.mark.slow
+def test_ray_executor_without_a_cluster_starts_and_stops_a_local_ray(grid_lake, tmp_path):
+    """No $RAY_ADDRESS: smgen starts Ray on this machine (127.0.0.1) and stops every process it started."""
+    pytest.importorskip("ray")
+    marker = f"{os.getpid()}-{tmp_path.name}"
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env |= {"SMSPACE_TEST_MARK": marker, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    lake = tmp_path / "lake"
+    proc = subprocess.run(
+        [str(BIN / "smgen"), "generate", *GRID, "--mode", "MME", "--executor", "ray", "--workers", "2", "--lake", str(lake)],
+        capture_output=True,
+        text=True,
+        env={k: str(v) for k, v in env.items()},
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert dataset_files(local_files(lake), "grid-seed3-MME") == dataset_files(local_files(grid_lake), "grid-seed3-MME")
+    assert _processes_marked(marker) == []
