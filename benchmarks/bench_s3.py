@@ -2,8 +2,8 @@
 local lake and on a local S3 server (moto, 127.0.0.1), streamed by TransitionStream.
 
 Prints one JSON object: transitions/s for each, and for S3 the HTTP requests and bytes per 1000
-transitions (counted on the client: every request s3fs sends, and the body bytes of its GETs). The moto server runs on this
-machine, so the figures measure our request pattern, not a network.
+transitions (counted on the client: every request s3fs sends, and the body bytes of its GETs).
+The moto server runs on this machine, so the figures measure our request pattern, not a network.
 Usage: python benchmarks/bench_s3.py [--transitions 65536] [--batch-size 64] [--epochs 2]
 """
 

@@ -157,8 +157,9 @@ def test_ray_executor_without_a_cluster_starts_and_stops_a_local_ray(grid_lake, 
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     env |= {"SMSPACE_TEST_MARK": marker, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
     lake = tmp_path / "lake"
+    ray_args = ["--executor", "ray", "--workers", "2", "--lake", str(lake)]
     proc = subprocess.run(
-        [str(BIN / "smgen"), "generate", *GRID, "--mode", "MME", "--executor", "ray", "--workers", "2", "--lake", str(lake)],
+        [str(BIN / "smgen"), "generate", *GRID, "--mode", "MME", *ray_args],
         capture_output=True,
         text=True,
         env={k: str(v) for k, v in env.items()},

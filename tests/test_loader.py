@@ -94,3 +94,26 @@ def test_resume_with_dataloader_workers():
     resumed.load_state_dict({"seed": 2, "batch_size": 100, "batches_consumed": 13})
     tail = rows_of(take(DataLoader(resumed, batch_size=None, num_workers=2), 17))
     np.testing.assert_array_equal(tail, full[1300:])
+
+
+def _rank_rows(rank: int, world: int, port: int, out: str) -> None:
+    """One rank of a gloo group: a stream built without rank arguments, read by 2 spawn workers."""
+    torch.distributed.init_process_group("gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=world)
+    try:
+        stream = TransitionStream(DATASET, batch_size=64, seed=1, epochs=1)
+        loader = DataLoader(stream, batch_size=None, num_workers=2, multiprocessing_context="spawn")
+        np.save(f"{out}/rank{rank}.npy", rows_of(loader))
+    finally:
+        torch.distributed.destroy_process_group()
+
+
+def test_ranks_of_a_process_group_with_spawn_workers_read_each_unit_once(tmp_path, monkeypatch):
+    """The rank comes from torch.distributed when the stream is built, not inside the workers (which,
+    spawned, have no process group and used to read the whole dataset on every rank)."""
+    from tests.servers import free_port
+
+    monkeypatch.setenv("GLOO_SOCKET_IFNAME", "lo")
+    torch.multiprocessing.spawn(_rank_rows, args=(2, free_port(), str(tmp_path)), nprocs=2, join=True)
+    parts = [np.load(tmp_path / f"rank{r}.npy") for r in range(2)]
+    assert len(parts[0]) == len(parts[1]) == 2048
+    np.testing.assert_array_equal(sort_rows(np.vstack(parts)), sort_rows(normalised_rows()))

@@ -43,6 +43,8 @@ def dataset_units(manifest: Manifest) -> list[Unit]:
 
 def _rank(rank: int | None, world: int | None) -> tuple[int, int]:
     if rank is not None and world is not None:
+        if world < 1 or not 0 <= rank < world:
+            raise ValueError(f"rank {rank} is not in 0 .. {world - 1}")
         return rank, world
     if torch.distributed.is_available() and torch.distributed.is_initialized():
         return torch.distributed.get_rank(), torch.distributed.get_world_size()
@@ -62,9 +64,11 @@ class TransitionStream(IterableDataset):
         rank: int | None = None,
         world_size: int | None = None,
     ):
-        """rank/world_size default to torch.distributed's when it is initialised, else 0 of 1."""
+        """rank/world_size default to torch.distributed's when it is initialised, else 0 of 1. They
+        are resolved here, in the rank's own process: DataLoader workers started by spawn have no
+        process group, and resolving there made every rank read the whole dataset."""
         super().__init__()
-        self.rank, self.world_size = rank, world_size
+        self.rank, self.world_size = _rank(rank, world_size)
         self.dataset = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
         self.batch_size = batch_size
         self.seed = seed
@@ -120,7 +124,7 @@ class TransitionStream(IterableDataset):
         N batches the next one is due from role N mod W, so on resume worker w plays role
         (w + N) mod W: the merged stream continues exactly where it stopped.
         """
-        rank, world = _rank(self.rank, self.world_size)
+        rank, world = self.rank, self.world_size
         info = get_worker_info()
         w, n_workers = (info.id, info.num_workers) if info else (0, 1)
         n = self.batches_consumed
