@@ -183,9 +183,34 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
     "--max-ensemble", type=click.IntRange(1, 10_000), default=150, show_default=True, help="Runs per vectorised model."
 )
 @click.option("--overwrite", is_flag=True, help="Replace runs in --out made with another config.")
+@click.option(
+    "--executor",
+    type=click.Choice(["local", "ray"]),
+    default="local",
+    show_default=True,
+    help="Where ensembles train: local processes, or Ray ($RAY_ADDRESS, else a local Ray on --workers CPUs).",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Ensembles trained at once (processes, or CPUs of a local Ray) [default: this machine's cores].",
+)
 @friendly_errors
 def sweep(
-    setup_name, modes, worlds, first_world, transitions, gen_workers, lake, out, max_ensemble, overwrite, **flags
+    setup_name,
+    modes,
+    worlds,
+    first_world,
+    transitions,
+    gen_workers,
+    lake,
+    out,
+    max_ensemble,
+    overwrite,
+    executor,
+    workers,
+    **flags,
 ) -> None:
     """Generate missing datasets, then train every (world, mode) run as vectorised ensembles."""
     from common.cli import default_workers
@@ -209,6 +234,8 @@ def sweep(
         gen_workers or default_workers(),
         max_ensemble,
         overwrite,
+        executor,
+        workers or default_workers(),
     )
     for run in runs:
         click.echo(display_name(str(run.path)))

@@ -75,6 +75,12 @@ class RunDir:
         if self._lock is None:
             self._lock = hold_lock(self.path / LOCK, f"{self.path} is being trained by another process", wait=False)
 
+    def release(self) -> None:
+        """Stop being the trainer (to hand the run to another process, which claims it)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
     # -- lifecycle ------------------------------------------------------------------------
     @classmethod
     def create(cls, path: Path, cfg: TrainConfig, overwrite: bool) -> RunDir:

@@ -12,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from common.errors import SmspaceError
+from common.executors import in_processes, in_ray, ray_session
 from datagen.generate import generate
 from datagen.setups import get_setup
 from lake.catalog import check_lake
@@ -61,6 +62,8 @@ def sweep(
     gen_workers: int = 1,
     max_ensemble: int = 150,
     overwrite: bool = False,
+    executor: str = "local",
+    workers: int = 1,
 ) -> list[RunDir]:
     spec = get_setup(setup)
     n = spec.default_transitions if transitions is None else transitions
@@ -71,7 +74,49 @@ def sweep(
     for run, step in plans:
         if step < run.config.steps:
             by_step[step].append(run)
-    for step, runs in sorted(by_step.items()):
-        for i in range(0, len(runs), max_ensemble):
-            train_ensemble(runs[i : i + max_ensemble], resume=step > 0, threads=template.threads)
+    chunks = [
+        (chunk, step > 0) for step, runs in sorted(by_step.items()) for chunk in ensembles(runs, max_ensemble, workers)
+    ]
+    run_ensembles(chunks, executor, workers, template.threads, template.device)
     return [run for run, _ in plans]
+
+
+def ensembles(runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[RunDir]]:
+    """Runs cut into ensembles of at most max_ensemble, and into at least `workers` of them when
+    there are enough runs, so that every core (or Ray CPU) gets one. A run's weights do not depend
+    on the grouping (docs/MODEL.md §4: only the summation order of the batched matmuls differs)."""
+    size = max(1, min(max_ensemble, -(-len(runs) // max(1, workers))))
+    return [runs[i : i + size] for i in range(0, len(runs), size)]
+
+
+def train_chunk(paths: list[str], resume: bool, threads: int, progress: bool = False) -> int:
+    """One ensemble, wherever it runs (this process, a spawned one, a Ray worker); returns its size."""
+    runs = [RunDir.open(Path(p)) for p in paths]
+    train_ensemble(runs, resume=resume, threads=threads, progress=progress)
+    return len(runs)
+
+
+def run_ensembles(
+    chunks: list[tuple[list[RunDir], bool]], executor: str, workers: int, threads: int, device: str
+) -> None:
+    """Train every ensemble: in this process when there is one (or one worker), else one spawned
+    process per ensemble up to `workers` at a time, or one Ray task per ensemble."""
+    if executor not in ("local", "ray"):
+        raise SmspaceError(f"unknown --executor {executor!r} (local or ray)")
+    if executor == "local" and (workers <= 1 or len(chunks) <= 1):
+        for runs, resume in chunks:
+            train_ensemble(runs, resume=resume, threads=threads)
+        return
+    for runs, _ in chunks:  # the processes that train them claim them
+        for run in runs:
+            run.release()
+    tasks = [([str(run.path) for run in runs], resume, threads) for runs, resume in chunks]
+    if executor == "local":
+        for _ in in_processes(train_chunk, tasks, workers):
+            pass
+        return
+    with ray_session(workers) as ray:
+        # no retry: a task started again would not know how far it got; re-running the sweep resumes
+        remote = ray.remote(num_cpus=threads, num_gpus=1 if device.startswith("cuda") else 0, max_retries=0)
+        for _ in in_ray(ray, remote(train_chunk), tasks):
+            pass
