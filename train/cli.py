@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 from collections.abc import Callable
 from dataclasses import MISSING, Field
@@ -118,18 +119,48 @@ def main() -> None:
     help="Continue the run in this folder from its last checkpoint (--steps may extend it).",
 )
 @click.option("--overwrite", is_flag=True, help="Replace the run already in --out.")
+@click.option(
+    "--nproc",
+    type=click.IntRange(1, 1024),
+    default=1,
+    show_default=True,
+    help="Train this one run on N processes of this machine (DDP, gloo; rendezvous on 127.0.0.1 only).",
+)
 @friendly_errors
-def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
-    """Train on DATASET (a folder or an id in the lake); prints the final metrics."""
+def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
+    """Train on DATASET (a folder or an id in the lake); prints the final metrics. Under torchrun,
+    one run on all its processes (DDP); --batch-size is then the global batch."""
+    from train.distributed import STORE_ENV, join_from_environment, leave
+    from train.launch import launch_local
+    from train.run_dir import RunDir
+
+    if nproc > 1 and STORE_ENV not in os.environ:  # this process only launches the ranks
+        if "WORLD_SIZE" in os.environ:
+            raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
+        sys.exit(launch_local(nproc, [sys.executable, "-m", "train.cli", *sys.argv[1:]]))
+    ctx = click.get_current_context()
+    device = RunDir.open(resume_dir).config.device if resume_dir is not None else flags["device"]
+    ranks = join_from_environment(device)  # under torchrun: this rank of the process group
+    try:
+        result, run = _fit_ranked(ctx, dataset, lake, out, resume_dir, overwrite, flags, ranks)
+    finally:
+        leave(ranks)
+    if ranks.primary:
+        click.echo(f"run: {display_name(str(run.path))}")
+        click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
+
+
+def _fit_ranked(ctx, dataset, lake, out, resume_dir, overwrite, flags, ranks):
+    """The body of `fit` on one rank: rank 0 alone creates or rewrites the run folder."""
     from dataclasses import replace
 
     from lake.dataset import Dataset
     from train.config import check_resources, flag_fields
+    from train.distributed import all_ok, per_rank_batch
     from train.fit import fit as run_fit
     from train.fit import resolve_device
     from train.run_dir import RunDir
 
-    ctx = click.get_current_context()
     if resume_dir is not None:
         given = [
             _flag_name(f)
@@ -140,21 +171,42 @@ def fit(dataset, lake, out, resume_dir, overwrite, **flags) -> None:
             raise SmspaceError(f"--resume continues a run with its own config; drop {' '.join(given) or 'DATASET'}")
         run = RunDir.open(resume_dir)
         cfg = run.config
+        if cfg.world_size != ranks.world:
+            raise SmspaceError(
+                f"{run.path} was trained on {cfg.world_size} process(es); resume it on as many "
+                f"(torchrun --nproc-per-node {cfg.world_size}), not {ranks.world}"
+            )
         if ctx.get_parameter_source("steps") == click.core.ParameterSource.COMMANDLINE:
             cfg = replace(cfg, steps=flags["steps"])  # extending a run; the schedule stays as recorded
-            run.write_config(cfg)
-        result = run_fit(cfg, run, resume=True)
-    else:
-        if dataset is None:
-            raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
-        ds = Dataset.open(dataset, lake)
-        cfg = config_from_flags(flags).for_dataset(ds.store, ds.manifest)
-        resolve_device(cfg.device)
-        check_resources(cfg, ds.manifest)
-        run = RunDir.create(out or RUNS / cfg.run_name, cfg, overwrite)
-        result = run_fit(cfg, run)
-    click.echo(f"run: {display_name(str(run.path))}")
-    click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
+        problem = None
+        if ranks.primary and cfg.steps != run.config.steps:
+            _, problem = _attempt(lambda: run.write_config(cfg), None)
+        if not all_ok(problem is None, ranks):
+            raise problem or SmspaceError("rank 0 could not update the run folder (see its error)")
+        return run_fit(cfg, run, resume=True, ranks=ranks), run
+    if dataset is None:
+        raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
+    ds = Dataset.open(dataset, lake)
+    cfg = replace(config_from_flags(flags).for_dataset(ds.store, ds.manifest), world_size=ranks.world)
+    resolve_device(cfg.device)
+    check_resources(cfg, ds.manifest)
+    per_rank_batch(cfg.batch_size, ranks)  # before the run folder exists
+    path = out or RUNS / cfg.run_name
+    run, problem = RunDir(path), None
+    if ranks.primary:
+        run, problem = _attempt(lambda: RunDir.create(path, cfg, overwrite), run)
+    if not all_ok(problem is None, ranks):  # no rank waits forever for a rank 0 that gave up
+        raise problem or SmspaceError("rank 0 could not create the run folder (see its error)")
+    return run_fit(cfg, run, ranks=ranks), run
+
+
+def _attempt(action, fallback):
+    """(what the action returned, None), or (fallback, its error): the error is raised only once
+    every rank knows about it."""
+    try:
+        return action(), None
+    except SmspaceError as e:
+        return fallback, e
 
 
 @main.command()
@@ -341,4 +393,4 @@ def view(run, output) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(prog_name="smtrain"))

@@ -60,6 +60,7 @@ class TrainConfig:
     # fixed by design, recorded so that a run folder says everything its numbers depend on
     eval_transitions: int = 4096  # the fixed set the evaluation loss is computed on
     shuffle_window: int = 8
+    world_size: int = 1  # processes training this one run (torchrun); a resume needs the same
 
     def __post_init__(self) -> None:
         for name in ("lr_start", "lr_end"):

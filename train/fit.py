@@ -12,8 +12,10 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.nn.parallel import DistributedDataParallel
 
 from train.config import TrainConfig
+from train.distributed import SINGLE, Ranks, ranks_agree
 from train.evaluation import N_PREDICTIONS, EvalData
 from train.loop import TrainingFailed, open_member, recorded_outcome, resolve_device, resume_members, train
 from train.model import SensorimotorNet, prediction_loss
@@ -32,10 +34,18 @@ def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):
 
 
 class SingleLearner:
-    """One SensorimotorNet and its Adam: the `Learner` of a lone run."""
+    """One SensorimotorNet and its Adam: the `Learner` of a lone run (under DDP, of one rank)."""
 
-    def __init__(self, model: SensorimotorNet, optimizer: torch.optim.Adam, data: EvalData):
-        self.model, self.optimizer, self.data = model, optimizer, data
+    def __init__(self, model: SensorimotorNet, optimizer: torch.optim.Adam, data: EvalData, ranks: Ranks = SINGLE):
+        self.model, self.optimizer, self.data, self.ranks = model, optimizer, data, ranks
+        self._trained: torch.nn.Module | None = None
+
+    def _training_model(self) -> torch.nn.Module:
+        """The model the steps run through: wrapped in DDP (gradients averaged over the ranks) when
+        there are several, built at the first step, after any checkpoint was loaded."""
+        if self._trained is None:
+            self._trained = DistributedDataParallel(self.model) if self.ranks.distributed else self.model
+        return self._trained
 
     def set_lr(self, lr: float) -> None:
         for group in self.optimizer.param_groups:
@@ -44,7 +54,7 @@ class SingleLearner:
     def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
         device = self.data.m_regular.device
         m_t, s_t, m_t1, s_t1 = (x.to(device, non_blocking=True) for x in batches[0])
-        loss = prediction_loss(self.model(m_t, s_t, m_t1), s_t1)
+        loss = prediction_loss(self._training_model()(m_t, s_t, m_t1), s_t1)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -66,18 +76,19 @@ class SingleLearner:
         self.optimizer.load_state_dict(checkpoint["optimizer"])
 
 
-def fit(cfg: TrainConfig, run: RunDir, resume: bool = False) -> dict[str, Any]:
-    """Train (or resume) one run; returns its last metrics row."""
+def fit(cfg: TrainConfig, run: RunDir, resume: bool = False, ranks: Ranks = SINGLE) -> dict[str, Any] | None:
+    """Train (or resume) one run; returns its last metrics row (on rank 0; None on the others)."""
     torch.set_num_threads(cfg.threads)  # 2 cores: oversubscribed threads made steps 10-40x slower
     device = resolve_device(cfg.device)
-    run.claim()  # before anything is recorded: a run another process trains is left untouched
-    with recorded_outcome([run]):
-        member = open_member(run, cfg, device)
+    if ranks.primary:
+        run.claim()  # before anything is recorded: a run another process trains is left untouched
+    with recorded_outcome([run] if ranks.primary else []):
+        member = open_member(run, cfg, device, ranks)
         manifest = member.dataset.manifest
         if not cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
             cfg = member.cfg = cfg.for_dataset(member.dataset.store, manifest)
         model, optimizer = build(cfg, manifest.n_motor, int(np.prod(manifest.sensor_shape)), device)
-        learner = SingleLearner(model, optimizer, member.data)
-        step = resume_members(learner, [member], device) if resume else 0
-        train(learner, [member], step)
-    return member.rows[-1]
+        learner = SingleLearner(model, optimizer, member.data, ranks)
+        step = resume_members(learner, [member], device, ranks) if resume else 0
+        train(learner, [member], step, ranks=ranks, synced=lambda: ranks_agree(model, ranks))
+    return member.rows[-1] if ranks.primary else None

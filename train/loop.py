@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -24,6 +24,7 @@ from tqdm import tqdm
 from common.errors import SmspaceError
 from lake.dataset import Dataset
 from train.config import TrainConfig, learning_rate
+from train.distributed import SINGLE, Ranks, mean_over_ranks, per_rank_batch
 from train.evaluation import EvalData, scores_row, write_evaluation
 from train.loader import TransitionStream
 from train.run_dir import RunDir
@@ -76,7 +77,7 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def open_member(run: RunDir, cfg: TrainConfig, device: torch.device) -> Member:
+def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Ranks = SINGLE) -> Member:
     ds = Dataset(cfg.dataset)
     recorded = (cfg.dataset_config_hash, cfg.dataset_shards_sha256)
     found = (ds.manifest.config_hash, ds.manifest.shards_digest)
@@ -89,11 +90,14 @@ def open_member(run: RunDir, cfg: TrainConfig, device: torch.device) -> Member:
     for size, shard in zip(ds.shard_sizes(), ds.manifest.shards, strict=True):
         if size != shard["bytes"]:
             raise SmspaceError(f"shard {ds.url}/{shard['file']} is not the size its manifest records")
-    stream = TransitionStream(ds, cfg.batch_size, seed=cfg.seed, window=cfg.shuffle_window)
+    batch = per_rank_batch(cfg.batch_size, ranks)
+    stream = TransitionStream(
+        ds, batch, seed=cfg.seed, window=cfg.shuffle_window, rank=ranks.rank, world_size=ranks.world
+    )
     return Member(run, cfg, ds, stream, EvalData.load(ds, cfg.eval_transitions, device))
 
 
-def resume_members(learner: Learner, members: list[Member], device: torch.device) -> int:
+def resume_members(learner: Learner, members: list[Member], device: torch.device, ranks: Ranks = SINGLE) -> int:
     """Load every run's checkpoint; all must be at the same step, which is returned."""
     steps = set()
     for r, m in enumerate(members):
@@ -103,20 +107,34 @@ def resume_members(learner: Learner, members: list[Member], device: torch.device
         step = int(ckpt["step"])
         m.elapsed = float(ckpt["elapsed_s"])
         m.rows = [row for row in m.run.metrics() if row["step"] <= step]
-        m.run.truncate_after(step)
+        if ranks.primary:  # the run folder is rank 0's
+            m.run.truncate_after(step)
         steps.add(step)
     if len(steps) != 1:
         raise SmspaceError(f"runs trained together must be at one step; their checkpoints are at {sorted(steps)}")
     return steps.pop()
 
 
-def train(learner: Learner, members: list[Member], step: int, progress: bool = True) -> None:
-    """Train every member from `step` (0, or where `resume_members` left them) to cfg.steps."""
+def train(
+    learner: Learner,
+    members: list[Member],
+    step: int,
+    progress: bool = True,
+    ranks: Ranks = SINGLE,
+    synced: Callable[[], bool] = lambda: True,
+) -> None:
+    """Train every member from `step` (0, or where `resume_members` left them) to cfg.steps. Under
+    DDP every rank steps, rank 0 alone evaluates and writes, and at each evaluation all ranks check
+    (`synced`) that they hold identical weights."""
     cfg = members[0].cfg  # the schedule is shared: ensembles check that their runs agree on it
     count = len(members)
     device = members[0].data.m_regular.device
 
     def record(step: int, train_loss: np.ndarray, wall: float) -> None:
+        if not synced():
+            raise TrainingFailed(f"the {ranks.world} ranks hold different weights at step {step}; stopped")
+        if not ranks.primary:
+            return
         losses, hs, preds = learner.evaluate()
         lr = learning_rate(cfg, step)
         for r, m in enumerate(members):
@@ -146,13 +164,18 @@ def train(learner: Learner, members: list[Member], step: int, progress: bool = T
     loss_count = 0
     desc = "training" if count == 1 else f"ensemble of {count}"
     bar = tqdm(
-        total=cfg.steps, initial=step, unit="step", disable=None if progress else True, file=sys.stderr, desc=desc
+        total=cfg.steps,
+        initial=step,
+        unit="step",
+        disable=None if progress and ranks.primary else True,
+        file=sys.stderr,
+        desc=desc,
     )
     try:
         t0 = time.perf_counter()
         while step < cfg.steps:
             learner.set_lr(learning_rate(cfg, step))
-            losses = learner.train_step([_next_batch(b) for b in batches])
+            losses = mean_over_ranks(learner.train_step([_next_batch(b) for b in batches]), ranks)
             if check_each_step and not bool(torch.isfinite(losses).all()):
                 raise diverged(step, losses.numpy())
             step += 1
@@ -169,15 +192,17 @@ def train(learner: Learner, members: list[Member], step: int, progress: bool = T
                 t0 = time.perf_counter()
                 loss_sum.zero_()
                 loss_count = 0
-                if count == 1:
+                if count == 1 and ranks.primary:
                     row = members[0].rows[-1]
                     bar.set_postfix(
                         loss=f"{row['eval_loss']:.4g}", D_topo=f"{row['d_topo']:.3g}", D_metric=f"{row['d_metric']:.3g}"
                     )
     finally:
         bar.close()
-    for m in members:
-        m.run.set_status("finished", step)
+    if ranks.primary:
+        message = f"{ranks.world} ranks, identical weights at every evaluation" if ranks.distributed else ""
+        for m in members:
+            m.run.set_status("finished", step, message)
 
 
 def _next_batch(batches) -> tuple[torch.Tensor, ...]:

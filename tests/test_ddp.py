@@ -1,0 +1,91 @@
+"""One run on two processes (DDP, gloo, 127.0.0.1): `smtrain fit --nproc 2`."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+
+from tests.conftest import BIN, SAMPLES
+from tests.servers import assert_loopback_only, stop_group, tree
+from train.run_dir import RunDir
+
+pytestmark = pytest.mark.slow
+DATASET = SAMPLES / "grid-seed0-MEM"
+
+
+def fit(*args, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen(
+        [str(BIN / "smtrain"), "fit", *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        **kwargs,
+    )
+
+
+def test_two_ranks_train_one_run_with_identical_weights_on_loopback_only(tmp_path):
+    out = tmp_path / "run"
+    proc = fit(DATASET, "--nproc", 2, "--steps", 120, "--eval-every", 40, "--out", out)
+    seen, pids = 0, set()
+    try:
+        while proc.poll() is None:  # every socket of the launcher and its ranks: 127.0.0.1 only
+            pids |= tree(proc.pid)
+            seen = max(seen, assert_loopback_only(tree(proc.pid)))
+            time.sleep(0.2)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        stop_group(proc)
+    assert proc.returncode == 0, stderr
+    assert seen >= 3  # the store, and gloo on each rank
+    assert stdout.count("run: ") == 1  # rank 0 alone speaks
+    run = RunDir.open(out)
+    assert run.config.world_size == 2 and run.config.batch_size == 100
+    assert [r["step"] for r in run.metrics()] == [0, 40, 80, 120]  # written once, by rank 0
+    status = run.status()
+    assert status["state"] == "finished" and status["message"] == "2 ranks, identical weights at every evaluation"
+    assert not [p for p in pids if tree(p)]  # no rank outlives the command
+
+
+def test_killed_two_rank_run_resumes_on_two_ranks_only(tmp_path):
+    out = tmp_path / "run"
+    args = [DATASET, "--nproc", 2, "--steps", 3000, "--eval-every", 50, "--out", out]
+    proc = fit(*args)
+    try:
+        deadline = time.monotonic() + 300
+        while not ((out / "checkpoint.pt").exists() and RunDir.open(out).checkpoint_step() >= 100):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+    finally:
+        stop_group(proc)
+    killed_at = RunDir.open(out).checkpoint_step()
+    assert 100 <= killed_at < 3000
+
+    alone = subprocess.run(
+        [str(BIN / "smtrain"), "fit", "--resume", str(out)], capture_output=True, text=True, timeout=120
+    )
+    assert alone.returncode == 2 and alone.stderr.count("\n") == 1
+    assert "trained on 2 process(es)" in alone.stderr
+
+    again = fit("--resume", out, "--nproc", 2, "--steps", killed_at + 100)
+    stdout, stderr = again.communicate(timeout=300)
+    assert again.returncode == 0, stderr
+    steps = [r["step"] for r in RunDir.open(out).metrics()]
+    assert steps == list(range(0, killed_at + 101, 50))  # no step lost, none written twice
+    assert json.loads(stdout.splitlines()[-1])["step"] == killed_at + 100
+
+
+def test_a_global_batch_that_does_not_split_is_one_line(tmp_path):
+    proc = fit(DATASET, "--nproc", 2, "--batch-size", 101, "--steps", 10, "--out", tmp_path / "run")
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 2, stderr
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "--batch-size 101" in lines[0], stderr
+    assert not (tmp_path / "run").exists()  # refused before anything was written
