@@ -280,3 +280,59 @@ def test_every_other_command_takes_an_s3_dataset(s3, tmp_path):
     assert preview.returncode == 0 and any((tmp_path / "png").glob("*.png")), preview.stderr
     view = cli(s3, "smgen", "view", "grid-seed5-MM", "--lake", lake, "--limit", 200, "--save", tmp_path / "v.rrd")
     assert view.returncode == 0 and (tmp_path / "v.rrd").stat().st_size > 0, view.stderr
+
+
+def test_run_folders_on_s3_are_written_listed_resumed_and_reported(s3, tmp_path):
+    lake, runs = "s3://lake/runfolders", "s3://lake/runs"
+    assert cli(s3, "smgen", "generate", *GRID, "--mode", "MM", "--lake", lake).returncode == 0
+    run = f"{runs}/mm"
+    fit = cli(s3, "smtrain", "fit", f"{lake}/grid-seed3-MM", "--steps", 40, "--eval-every", 20, "--out", run)
+    assert fit.returncode == 0, fit.stderr
+    assert fit.stdout.startswith(f"run: {run}\n")
+    more = cli(s3, "smtrain", "fit", "--resume", run, "--steps", 60)
+    assert more.returncode == 0, more.stderr
+    info = cli(s3, "smtrain", "info", run, "--json")
+    assert info.returncode == 0 and json.loads(info.stdout)["step"] == 60
+    listing = cli(s3, "smtrain", "ls", "--runs", runs, "--json")
+    rows = [json.loads(line) for line in listing.stdout.splitlines()]
+    assert [(r["run"], r["state"], r["step"]) for r in rows] == [(run, "finished", 60)]
+    fs = s3fs_for(s3)
+    names = sorted(p.rsplit("/", 1)[-1] for p in fs.find("lake/runs/mm"))
+    assert {"config.json", "metrics.parquet", "checkpoint.pt", "status.json", "step-0000060.parquet"} <= set(names)
+    assert not any(name.endswith(".partial") or name == ".lock" for name in names)
+    report = cli(s3, "smtrain", "report", run, "--out", tmp_path / "report")
+    assert report.returncode == 0 and (tmp_path / "report" / "final.csv").exists(), report.stderr
+    view = cli(s3, "smtrain", "view", run, "--save", tmp_path / "run.rrd")
+    assert view.returncode == 0, view.stderr
+
+
+def test_a_ray_sweep_writes_its_run_folders_to_s3(s3, tmp_path):
+    """Ray workers share nothing but the bucket: datasets and run folders both live on S3."""
+    env = s3 | {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    env.pop("RAY_ADDRESS", None)
+    args = ["--setup", "grid", "--worlds", 1, "--seed", 4, "--modes", "MEM,MM", "--transitions", 3000, "--steps", 20]
+    sweep = cli(
+        env,
+        "smtrain",
+        "sweep",
+        *args,
+        "--eval-every",
+        10,
+        "--lake",
+        "s3://lake/raysweep",
+        "--out",
+        "s3://lake/raysweep-runs",
+        "--executor",
+        "ray",
+        "--workers",
+        2,
+        "--max-ensemble",
+        1,
+    )
+    assert sweep.returncode == 0, sweep.stderr
+    listing = cli(s3, "smtrain", "ls", "--runs", "s3://lake/raysweep-runs", "--json")
+    rows = [json.loads(line) for line in listing.stdout.splitlines()]
+    assert sorted((r["dataset_id"], r["state"], r["step"]) for r in rows) == [
+        ("grid-seed4-MEM", "finished", 20),
+        ("grid-seed4-MM", "finished", 20),
+    ]

@@ -22,7 +22,7 @@ from train.config import MAX_LAYERS, MAX_WIDTH
 if TYPE_CHECKING:
     from train.config import TrainConfig
 
-RUNS = Path("runs")
+RUNS = "runs"  # a folder or an fsspec URL (s3://bucket/runs)
 
 
 def int_list(ctx, param, value: str | None) -> list[int] | None:
@@ -107,14 +107,11 @@ def main() -> None:
 @main.command()
 @click.argument("dataset", required=False)
 @LAKE_OPTION
-@click.option(
-    "--out", type=click.Path(path_type=Path), default=None, help="Run folder [default: runs/<dataset>-nh<N>-seed<S>]."
-)
+@click.option("--out", default=None, help="Run folder, or an fsspec URL [default: runs/<dataset>-nh<N>-seed<S>].")
 @config_options()
 @click.option(
     "--resume",
     "resume_dir",
-    type=click.Path(path_type=Path),
     default=None,
     help="Continue the run in this folder from its last checkpoint (--steps may extend it).",
 )
@@ -191,7 +188,7 @@ def _fit_ranked(ctx, dataset, lake, out, resume_dir, overwrite, flags, ranks):
     resolve_device(cfg.device)
     check_resources(cfg, ds.manifest)
     per_rank_batch(cfg.batch_size, ranks)  # before the run folder exists
-    path = out or RUNS / cfg.run_name
+    path = out or f"{RUNS}/{cfg.run_name}"
     run, problem = RunDir(path), None
     if ranks.primary:
         run, problem = _attempt(lambda: RunDir.create(path, cfg, overwrite), run)
@@ -229,7 +226,7 @@ def _attempt(action, fallback):
     help="Generator processes [default: this machine's cores; bytes do not depend on it].",
 )
 @LAKE_OPTION
-@click.option("--out", type=click.Path(path_type=Path), default=RUNS, show_default=True)
+@click.option("--out", default=RUNS, show_default=True, help="Folder (or fsspec URL) for the run folders.")
 @config_options(exclude=("seed",))
 @click.option(
     "--max-ensemble", type=click.IntRange(1, 10_000), default=150, show_default=True, help="Runs per vectorised model."
@@ -294,7 +291,7 @@ def sweep(
 
 
 @main.command()
-@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.argument("runs", nargs=-1, required=True)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder for figures and tables.")
 @friendly_errors
 def report(runs, out) -> None:
@@ -311,7 +308,8 @@ def _listed(path: Path) -> dict:
         return _run_summary(path)
     except SmspaceError as e:
         empty = dict.fromkeys(("dataset_id", "n_h", "seed", "eval_loss", "d_topo", "d_metric", "elapsed_s"))
-        return {"run": display_name(str(path)), "state": "broken", "message": str(e), "step": 0, "steps": 0} | empty
+        where = display_name(str(getattr(path, "url", path)))
+        return {"run": where, "state": "broken", "message": str(e), "step": 0, "steps": 0} | empty
 
 
 def _run_summary(path: Path) -> dict:
@@ -323,7 +321,7 @@ def _run_summary(path: Path) -> dict:
     last = rows[-1] if rows else {}
     status = run.status()
     return {
-        "run": str(path),
+        "run": str(run.path),
         "dataset_id": cfg.dataset_id,
         "state": status["state"],
         "message": status["message"],
@@ -338,8 +336,13 @@ def _run_summary(path: Path) -> dict:
     }
 
 
+def _leaf(where: str) -> str:
+    """The last name of a path or URL."""
+    return where.rstrip("/").rsplit("/", 1)[-1]
+
+
 @main.command("ls")
-@click.option("--runs", type=click.Path(path_type=Path), default=RUNS, show_default=True)
+@click.option("--runs", default=RUNS, show_default=True, help="A folder (or fsspec URL) of run folders.")
 @click.option("--json", "as_json", is_flag=True)
 @friendly_errors
 def ls_(runs, as_json) -> None:
@@ -349,19 +352,22 @@ def ls_(runs, as_json) -> None:
     def fmt(v) -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
 
+    from lake.store import open_store
+
+    folder = open_store(runs)
     echo_listing(
-        [_listed(p.parent) for p in sorted(Path(runs).glob(f"*/{CONFIG}"))],
+        [_listed(folder.child(path.split("/")[0])) for path in folder.list(f"*/{CONFIG}")],
         as_json,
         f"{'run':<40} {'state':<11} {'step':>13} {'loss':>10} {'D_topo':>10} {'D_metric':>10}",
         lambda s: (
-            f"{display_name(Path(s['run']).name):<40} {s['state']:<11} {s['step']:>6}/{s['steps']:<6} "
+            f"{display_name(_leaf(s['run'])):<40} {s['state']:<11} {s['step']:>6}/{s['steps']:<6} "
             f"{fmt(s['eval_loss']):>10} {fmt(s['d_topo']):>10} {fmt(s['d_metric']):>10}"
         ),
     )
 
 
 @main.command()
-@click.argument("run", type=click.Path(path_type=Path))
+@click.argument("run")
 @click.option("--json", "as_json", is_flag=True)
 @friendly_errors
 def info(run, as_json) -> None:
@@ -379,7 +385,7 @@ def info(run, as_json) -> None:
 
 
 @main.command()
-@click.argument("run", type=click.Path(path_type=Path))
+@click.argument("run")
 @view_options
 @friendly_errors
 def view(run, output) -> None:

@@ -150,7 +150,7 @@ def train(
             write_evaluation(m.run, m.rows, row, hs[r], m.data, preds[r], state)
 
     def diverged(at: int, losses: np.ndarray) -> TrainingFailed:
-        bad = ", ".join(members[r].run.path.name for r in np.flatnonzero(~np.isfinite(losses)))
+        bad = ", ".join(members[r].run.name for r in np.flatnonzero(~np.isfinite(losses)))
         last = members[0].rows[-1]["step"] if members[0].rows else 0
         return TrainingFailed(
             f"loss became NaN or inf at step {at} in {bad}; stopped, the checkpoint of step {last} is kept"

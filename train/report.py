@@ -28,7 +28,7 @@ class RunData:
 
     @property
     def name(self) -> str:
-        return self.run.path.name
+        return self.run.name
 
     def column(self, key: str) -> np.ndarray:
         return np.array([r[key] for r in self.rows], np.float64)

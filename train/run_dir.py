@@ -23,7 +23,7 @@ import torch
 
 from common.errors import SmspaceError
 from common.locks import HeldLock, hold_lock
-from lake.atomic import remove_partials, write_atomic
+from lake.store import LocalStore, Store, open_store
 from train.config import TrainConfig
 
 CONFIG = "config.json"
@@ -66,14 +66,36 @@ EVALUATION_FILE = re.compile(r"[a-z0-9_]+-(?P<step>\d{7})\.(parquet|npy)")  # st
 
 
 class RunDir:
-    def __init__(self, path: Path):
-        self.path = Path(path)
+    """A run folder on this machine or on object storage (any fsspec URL): every file is written
+    whole in one step, the checkpoint last at each evaluation (it is the commit record: resume
+    trims what later evaluations wrote)."""
+
+    def __init__(self, where: Path | str | Store):
+        self.store: Store = where if isinstance(where, Store) else open_store(where)
         self._lock: HeldLock | None = None
 
+    @property
+    def path(self) -> Path | str:
+        """The folder (a Path locally, else its URL), for messages and listings."""
+        return self.store.path if isinstance(self.store, LocalStore) else self.store.url
+
+    @property
+    def name(self) -> str:
+        return self.store.name
+
+    @property
+    def local_path(self) -> Path | None:
+        return self.store.path if isinstance(self.store, LocalStore) else None
+
+    def _embeddings(self) -> Store:
+        return self.store.child(EMBEDDINGS)
+
     def claim(self) -> None:
-        """Become the one process training this run; another one gets a clear refusal."""
-        if self._lock is None:
-            self._lock = hold_lock(self.path / LOCK, f"{self.path} is being trained by another process", wait=False)
+        """Become the one process training this run; another one gets a clear refusal (local
+        folders: a lock; object storage has none, and a sweep gives each run to one task)."""
+        if self._lock is None and isinstance(self.store, LocalStore):
+            busy = f"{self.path} is being trained by another process"
+            self._lock = hold_lock(self.store.path / LOCK, busy, wait=False)
 
     def release(self) -> None:
         """Stop being the trainer (to hand the run to another process, which claims it)."""
@@ -83,46 +105,52 @@ class RunDir:
 
     # -- lifecycle ------------------------------------------------------------------------
     @classmethod
-    def create(cls, path: Path, cfg: TrainConfig, overwrite: bool) -> RunDir:
-        run = cls(path)
-        if run.path.exists() and not run.path.is_dir():
+    def create(cls, where: Path | str | Store, cfg: TrainConfig, overwrite: bool) -> RunDir:
+        run = cls(where)
+        if run.store.is_file():
             raise SmspaceError(f"output {run.path} is a file, not a folder")
-        if (run.path / CONFIG).exists() and not overwrite:
+        if run.store.exists(CONFIG) and not overwrite:
             raise SmspaceError(f"{run.path} already holds a run: pass --resume to continue it or --overwrite")
-        elif run.path.exists() and any(p.name != LOCK for p in run.path.iterdir()) and not overwrite:
+        if not overwrite and any(name != LOCK for name in _entries(run.store)):
             raise SmspaceError(f"{run.path} is not empty and holds no run; choose another --out")
-        try:
-            run.path.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise SmspaceError(f"cannot create run folder {run.path}: {e.strerror or e}") from e
+        run.store.make()
         run.claim()
-        if (run.path / CONFIG).exists():
+        if run.store.exists(CONFIG):
             run._clear()
         run.write_config(cfg)
         return run
 
     def write_config(self, cfg: TrainConfig) -> None:
-        write_atomic(self.path / CONFIG, (json.dumps(cfg.to_dict(), indent=1) + "\n").encode())
+        self.store.put(CONFIG, (json.dumps(cfg.to_dict(), indent=1) + "\n").encode())
 
     @classmethod
-    def open(cls, path: Path) -> RunDir:
-        run = cls(path)
-        if not (run.path / CONFIG).exists():
+    def open(cls, where: Path | str | Store) -> RunDir:
+        run = cls(where)
+        if not run.store.exists(CONFIG):
             raise SmspaceError(f"{run.path} is not a run folder (no {CONFIG})")
         return run
 
     def _clear(self) -> None:
         for name in (CONFIG, METRICS, CHECKPOINT, STATUS):
-            (self.path / name).unlink(missing_ok=True)
-        shutil.rmtree(self.path / EMBEDDINGS, ignore_errors=True)
-        remove_partials(self.path)
+            self.store.delete(name)
+        embeddings = self._embeddings()
+        for name in embeddings.list("*"):
+            embeddings.delete(name)
+        if isinstance(embeddings, LocalStore):
+            shutil.rmtree(embeddings.path, ignore_errors=True)
+        self.store.remove_partials()
+
+    def _read(self, name: str, store: Store | None = None) -> bytes:
+        return (store or self.store).read_bytes(name)
 
     @property
     def config(self) -> TrainConfig:
         try:
-            return TrainConfig.from_dict(json.loads((self.path / CONFIG).read_text()))
+            return TrainConfig.from_dict(json.loads(self._read(CONFIG)))
+        except FileNotFoundError:
+            raise SmspaceError(f"{self.path} is not a run folder (no {CONFIG})") from None
         except (json.JSONDecodeError, UnicodeDecodeError, TypeError, AttributeError) as e:
-            raise SmspaceError(f"{self.path / CONFIG} is unreadable ({type(e).__name__})") from e
+            raise SmspaceError(f"{self.path}/{CONFIG} is unreadable ({type(e).__name__})") from e
 
     # -- status ---------------------------------------------------------------------------
     def set_status(self, state: str, step: int, message: str = "") -> None:
@@ -130,16 +158,16 @@ class RunDir:
         status = {"state": state, "step": step, "message": message}
         if state == "running":
             status |= {"pid": os.getpid(), "host": socket.gethostname()}
-        write_atomic(self.path / STATUS, json.dumps(status).encode())
+        self.store.put(STATUS, json.dumps(status).encode())
 
     def status(self) -> dict[str, Any]:
         """The recorded state; "running" becomes "stale" when its process is gone from this host."""
         try:
-            status = json.loads((self.path / STATUS).read_text())
+            status = json.loads(self._read(STATUS))
         except FileNotFoundError:
             return {"state": "created", "step": 0, "message": ""}
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise SmspaceError(f"{self.path / STATUS} is unreadable ({type(e).__name__})") from e
+            raise SmspaceError(f"{self.path}/{STATUS} is unreadable ({type(e).__name__})") from e
         mine = status.get("host") == socket.gethostname()
         if status.get("state") == "running" and mine and not _alive(status.get("pid")):
             status |= {"state": "stale", "message": "its process is gone; resume with --resume"}
@@ -147,83 +175,92 @@ class RunDir:
 
     # -- metrics and embeddings -------------------------------------------------------------
     def metrics(self) -> list[dict[str, Any]]:
-        path = self.path / METRICS
-        if not path.exists():
-            return []
         try:
-            return _read_parquet(path).to_pylist()
+            return _parquet(self._read(METRICS)).to_pylist()
+        except FileNotFoundError:
+            return []
         except (OSError, pa.ArrowException) as e:
-            raise SmspaceError(f"{path} is unreadable ({type(e).__name__})") from e
+            raise SmspaceError(f"{self.path}/{METRICS} is unreadable ({type(e).__name__})") from e
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
-        write_atomic(self.path / METRICS, _parquet_bytes(pa.Table.from_pylist(rows, schema=METRICS_SCHEMA)))
+        self.store.put(METRICS, _parquet_bytes(pa.Table.from_pylist(rows, schema=METRICS_SCHEMA)))
 
     def write_embeddings(self, step: int, h: np.ndarray, p: np.ndarray, extra: dict[str, np.ndarray]) -> None:
         """h of the regular sampling with its p (so anyone can recompute the metrics), plus extras."""
-        folder = self.path / EMBEDDINGS
-        folder.mkdir(exist_ok=True)
+        folder = self._embeddings()
+        folder.make()
         columns = {
             "index": pa.array(np.arange(len(h), dtype=np.int32)),
             "h": _fixed_list(h),
             "p": _fixed_list(p),
         }
         table = pa.table(columns, metadata={"step": str(step)})
-        write_atomic(folder / embedding_file(step), _parquet_bytes(table))
+        folder.put(embedding_file(step), _parquet_bytes(table))
         for name, value in extra.items():
-            write_atomic(folder / array_file(name, step), _npy_bytes(value))
+            folder.put(array_file(name, step), _npy_bytes(value))
 
     def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
-        table = _read_parquet(self.path / EMBEDDINGS / embedding_file(step))
+        table = _parquet(self._read(embedding_file(step), self._embeddings()))
         return _from_fixed_list(table["h"]), _from_fixed_list(table["p"])
 
     def predictions(self, step: int) -> np.ndarray:
         """The normalised s_t1 the network predicted at `step` for the first evaluation transitions."""
-        return np.load(self.path / EMBEDDINGS / array_file(PREDICTED, step), allow_pickle=False)
+        return _npy(self._read(array_file(PREDICTED, step), self._embeddings()))
 
     def true_s_t1(self) -> np.ndarray:
         """The normalised s_t1 those predictions aim at (saved once, at step 0)."""
-        return np.load(self.path / EMBEDDINGS / array_file(TRUE, 0), allow_pickle=False)
+        return _npy(self._read(array_file(TRUE, 0), self._embeddings()))
 
     def truncate_after(self, step: int) -> None:
         """Drop what evaluations after `step` wrote, and whatever killed writers left half-done."""
-        remove_partials(self.path)
-        folder = self.path / EMBEDDINGS
-        if not folder.is_dir():
-            return
-        remove_partials(folder)
-        for path in folder.iterdir():
-            match = EVALUATION_FILE.fullmatch(path.name)
+        self.store.remove_partials()
+        folder = self._embeddings()
+        folder.remove_partials()
+        for name in folder.list("*"):
+            match = EVALUATION_FILE.fullmatch(name)
             if match and int(match["step"]) > step:
-                path.unlink()
+                folder.delete(name)
 
     # -- checkpoints --------------------------------------------------------------------------
     def save_checkpoint(self, state: dict[str, Any]) -> None:
         buf = io.BytesIO()
         torch.save(state, buf)
-        write_atomic(self.path / CHECKPOINT, buf.getvalue())
+        self.store.put(CHECKPOINT, buf.getvalue())
 
     def checkpoint_step(self) -> int:
         """The step of the last checkpoint; 0 when there is none yet."""
-        return int(self.load_checkpoint()["step"]) if (self.path / CHECKPOINT).exists() else 0
+        return int(self.load_checkpoint()["step"]) if self.store.exists(CHECKPOINT) else 0
 
     def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
-        path = self.path / CHECKPOINT
-        if not path.exists():
-            raise SmspaceError(f"{self.path} has no checkpoint to resume from")
+        where = f"{self.path}/{CHECKPOINT}"
         try:
-            return torch.load(path, map_location=device, weights_only=True)
+            data = self._read(CHECKPOINT)
+        except FileNotFoundError:
+            raise SmspaceError(f"{self.path} has no checkpoint to resume from") from None
+        try:
+            return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
         except pickle.UnpicklingError as e:  # weights_only refused an object: never load it another way
             raise SmspaceError(
-                f"{path} is not a smspace checkpoint (it holds objects other than tensors and plain data); "
+                f"{where} is not a smspace checkpoint (it holds objects other than tensors and plain data); "
                 "it was not loaded"
             ) from e
         except Exception as e:
-            raise SmspaceError(f"checkpoint {path} is unreadable ({type(e).__name__}); it was not loaded") from e
+            raise SmspaceError(f"checkpoint {where} is unreadable ({type(e).__name__}); it was not loaded") from e
 
 
-def _read_parquet(path: Path) -> pa.Table:
-    with open(path, "rb") as fh:  # pyarrow cannot open a path that is not valid UTF-8; Python can
-        return pq.read_table(fh)
+def _entries(store: Store) -> list[str]:
+    """Every name in a folder: files, and locally folders too."""
+    if isinstance(store, LocalStore):
+        return [p.name for p in store.path.iterdir()] if store.path.is_dir() else []
+    return store.list("*")
+
+
+def _parquet(data: bytes) -> pa.Table:
+    return pq.read_table(pa.BufferReader(data))  # a Python file object here aborts the process at exit (pyarrow)
+
+
+def _npy(data: bytes) -> np.ndarray:
+    return np.load(io.BytesIO(data), allow_pickle=False)
 
 
 def _alive(pid: Any) -> bool:

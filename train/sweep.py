@@ -17,7 +17,7 @@ from datagen.generate import generate
 from datagen.setups import get_setup
 from lake.catalog import check_lake
 from lake.manifest import load_manifest
-from lake.store import Store
+from lake.store import Store, open_store
 from train.config import TrainConfig
 from train.ensemble import train_ensemble
 from train.run_dir import CONFIG, RunDir
@@ -26,14 +26,17 @@ from train.run_dir import CONFIG, RunDir
 RESUMABLE = ("steps", "lr_decay_steps")
 
 
-def plan_runs(template: TrainConfig, datasets: list[Store], out: Path, overwrite: bool) -> list[tuple[RunDir, int]]:
+def plan_runs(
+    template: TrainConfig, datasets: list[Store], out: Store | Path | str, overwrite: bool
+) -> list[tuple[RunDir, int]]:
     """(run folder, step it is at) for every dataset; creates new folders, checks old ones."""
+    out = out if isinstance(out, Store) else open_store(out)
     plans = []
     for folder in datasets:
         manifest = load_manifest(folder)
         cfg = replace(template, seed=manifest.world_seed).for_dataset(folder, manifest)
-        path = out / cfg.run_name
-        if (path / CONFIG).exists() and not overwrite:
+        path = out.child(cfg.run_name)
+        if path.exists(CONFIG) and not overwrite:
             run = RunDir.open(path)
             old = run.config.to_dict()
             new = cfg.to_dict()
@@ -57,7 +60,7 @@ def sweep(
     world_seeds: list[int],
     template: TrainConfig,
     lake: Store | str,
-    out: Path,
+    out: Store | Path | str,
     transitions: int | None = None,
     gen_workers: int = 1,
     max_ensemble: int = 150,
@@ -91,7 +94,7 @@ def ensembles(runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[
 
 def train_chunk(paths: list[str], resume: bool, threads: int, progress: bool = False) -> int:
     """One ensemble, wherever it runs (this process, a spawned one, a Ray worker); returns its size."""
-    runs = [RunDir.open(Path(p)) for p in paths]
+    runs = [RunDir.open(p) for p in paths]
     train_ensemble(runs, resume=resume, threads=threads, progress=progress)
     return len(runs)
 

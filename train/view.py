@@ -71,9 +71,9 @@ def view_run(run: RunDir, output: ViewOutput) -> int:
     embeddings = [run.embeddings(int(s)) for s in steps]
     p = embeddings[0][1].astype(np.float64)
     n = len(p)
-    with recording("smspace", f"run:{run.path.name}", blueprint(images), output, run.path) as rec:
+    with recording("smspace", f"run:{run.name}", blueprint(images), output, run.local_path) as rec:
         times = [rr.TimeColumn("step", sequence=steps)]
-        text = f"# {run.path.name}\n\n```json\n{json.dumps(cfg.to_dict(), indent=1)}\n```\n"
+        text = f"# {run.name}\n\n```json\n{json.dumps(cfg.to_dict(), indent=1)}\n```\n"
         rec.log("run", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
         colours = position_colours(p)
         h3 = np.stack([np.pad(h[:, :3], ((0, 0), (0, max(0, 3 - h.shape[1])))) for h, _ in embeddings])
