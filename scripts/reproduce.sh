@@ -1,18 +1,58 @@
 #!/usr/bin/env bash
-# The study of docs/REPRODUCTION.md, exactly as it was run (about 2 hours on the 2-core machine:
-# the grid sweep on one core, arm generation then the arm sweep on the other).
-# Usage: bash scripts/reproduce.sh [LAKE] [RUNS]   (defaults data/lake and runs/repro)
+# The studies of docs/REPRODUCTION.md, exactly as they were run on the 2-core machine. Every sweep
+# is resumable: re-running a stage skips finished runs and resumes the others from their checkpoints.
+#
+# Usage: bash scripts/reproduce.sh STAGE [LAKE] [RUNS]     (defaults data/lake and runs/repro)
+#   grid        3 modes × 10 worlds × 100000 steps, N_h = 3 (about 90 min of one core)
+#   arm         3 modes × 3 worlds (seeds 0-2) × 100000 steps (25 min of rendering, 81 min of one core)
+#   grid-nh25   the grid study again with N_h = 25 (the same datasets)
+#   grid6       the six-motor grid, 5 worlds × 3 modes × 30000 steps, encoder 500-400-300-200
+#   arm-more    the arm with 3 more worlds (seeds 3-5) × 100000 steps, for the MEM-vs-MM order
+#   arm6        the six-motor arm, 3 worlds × 3 modes × 30000 steps
+#   reports     every figure and table under docs/reproduction/
+#   new         grid-nh25, grid6, arm-more, arm6, then reports (both cores for each sweep)
+# Full size on a cluster: add --executor ray (with RAY_ADDRESS set), --worlds 50 and --steps 100000,
+# and an s3:// --lake and --out (README, "Scaling out").
 set -euo pipefail
 cd "$(dirname "$0")/.."
-LAKE=${1:-data/lake}
-RUNS=${2:-runs/repro}
+STAGE=${1:?give a stage: grid, arm, grid-nh25, grid6, arm-more, arm6, reports, new}
+LAKE=${2:-data/lake}
+RUNS=${3:-runs/repro}
 BIN=.venv/bin
+CORES=$(nproc)
+SWEEP=("$BIN/smtrain" sweep --lake "$LAKE" --modes MEM,MM,MME --workers "$CORES" --gen-workers "$CORES")
 
-# grid: 3 modes × 10 worlds (seeds 0-9) × 100000 steps, one vectorised ensemble of 30 runs
-$BIN/smtrain sweep --setup grid --modes MEM,MM,MME --worlds 10 --seed 0 --steps 100000 --lake "$LAKE" --out "$RUNS/grid" &
-# arm: 3 modes × 3 worlds (seeds 0-2), 150000 transitions each, then 100000 steps
-$BIN/smgen generate --setup arm --mode all --worlds 3 --seed 0 --lake "$LAKE" --workers 1
-$BIN/smtrain sweep --setup arm --modes MEM,MM,MME --worlds 3 --seed 0 --steps 100000 --lake "$LAKE" --out "$RUNS/arm"
-wait
-$BIN/smtrain report "$RUNS"/grid/* --out docs/reproduction/grid
-$BIN/smtrain report "$RUNS"/arm/* --out docs/reproduction/arm
+grid() { "${SWEEP[@]}" --setup grid --worlds 10 --seed 0 --steps 100000 --out "$RUNS/grid"; }
+arm() {
+  "$BIN/smgen" generate --setup arm --mode all --worlds 3 --seed 0 --lake "$LAKE" --workers "$CORES"
+  "${SWEEP[@]}" --setup arm --worlds 3 --seed 0 --steps 100000 --out "$RUNS/arm"
+}
+grid_nh25() { "${SWEEP[@]}" --setup grid --worlds 10 --seed 0 --steps 100000 --nh 25 --out "$RUNS/grid-nh25"; }
+grid6() { "${SWEEP[@]}" --setup grid6 --worlds 5 --seed 0 --steps 30000 --out "$RUNS/grid6"; }
+arm_more() {
+  "$BIN/smgen" generate --setup arm --mode all --worlds 3 --seed 3 --lake "$LAKE" --workers "$CORES"
+  "${SWEEP[@]}" --setup arm --worlds 3 --seed 3 --steps 100000 --out "$RUNS/arm-more"
+}
+arm6() {
+  "$BIN/smgen" generate --setup arm6 --mode all --worlds 3 --seed 0 --lake "$LAKE" --workers "$CORES"
+  "${SWEEP[@]}" --setup arm6 --worlds 3 --seed 0 --steps 30000 --out "$RUNS/arm6"
+}
+reports() {
+  for study in grid arm grid-nh25 grid6 arm-more arm6; do
+    if compgen -G "$RUNS/$study/*/metrics.parquet" >/dev/null; then
+      "$BIN/smtrain" report "$RUNS/$study"/* --out "docs/reproduction/$study"
+    fi
+  done
+}
+
+case "$STAGE" in
+  grid) grid ;;
+  arm) arm ;;
+  grid-nh25) grid_nh25 ;;
+  grid6) grid6 ;;
+  arm-more) arm_more ;;
+  arm6) arm6 ;;
+  reports) reports ;;
+  new) grid_nh25; grid6; arm_more; arm6; reports ;;
+  *) echo "unknown stage $STAGE" >&2; exit 2 ;;
+esac

@@ -67,6 +67,19 @@ def stop_group(proc: subprocess.Popen, timeout: float = 20) -> None:
         proc.wait(timeout)
 
 
+def processes_marked(marker: str) -> list[int]:
+    """Processes whose environment carries SMSPACE_TEST_MARK=marker: all a command started, even
+    daemons that left its process tree."""
+    found = []
+    for proc in psutil.process_iter():
+        try:
+            if proc.environ().get("SMSPACE_TEST_MARK") == marker:
+                found.append(proc.pid)
+        except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
+            continue
+    return found
+
+
 AUTH_FREE_ACTIONS = 3  # moto authenticates every request after these: create user, policy, key
 
 

@@ -3,13 +3,14 @@ cluster (every node bound to 127.0.0.1, checked with `ss`, every Ray process gon
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 
 import pytest
 
 from tests.conftest import BIN, smgen
-from tests.servers import assert_loopback_only, tree
+from tests.servers import assert_loopback_only, processes_marked, tree
 from tests.test_s3 import dataset_files, local_files
 
 GRID = ["--setup", "grid", "--transitions", "6000", "--shard-size", "2500", "--seed", "3"]
@@ -136,19 +137,6 @@ def test_ray_runs_the_arm_preflight_on_a_worker_not_the_driver(ray_cluster, tmp_
     assert refused.returncode == 2 and not (tmp_path / "refused").exists()
 
 
-def _processes_marked(marker: str) -> list[int]:
-    import psutil
-
-    found = []
-    for proc in psutil.process_iter():
-        try:
-            if proc.environ().get("SMSPACE_TEST_MARK") == marker:
-                found.append(proc.pid)
-        except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
-            continue
-    return found
-
-
 @pytest.mark.slow
 def test_ray_executor_without_a_cluster_starts_and_stops_a_local_ray(grid_lake, tmp_path):
     """No $RAY_ADDRESS: smgen starts Ray on this machine (127.0.0.1) and stops every process it started."""
@@ -167,4 +155,22 @@ def test_ray_executor_without_a_cluster_starts_and_stops_a_local_ray(grid_lake, 
     )
     assert proc.returncode == 0, proc.stderr
     assert dataset_files(local_files(lake), "grid-seed3-MME") == dataset_files(local_files(grid_lake), "grid-seed3-MME")
-    assert _processes_marked(marker) == []
+    assert processes_marked(marker) == []
+
+
+@pytest.mark.slow
+def test_a_sweep_on_the_two_node_cluster_trains_every_run(ray_cluster, tmp_path):
+    cluster, _ = ray_cluster
+    args = ["sweep", "--setup", "grid", "--worlds", 1, "--seed", 3, "--transitions", 6000, "--steps", 20]
+    args += ["--eval-every", 10, "--lake", tmp_path / "lake", "--out", tmp_path / "runs", "--executor", "ray"]
+    proc = subprocess.run(
+        [str(BIN / "smtrain"), *map(str, args), "--max-ensemble", "1"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "RAY_ADDRESS": cluster.address},
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    finished = [json.loads(p.read_text())["state"] for p in sorted((tmp_path / "runs").glob("*/status.json"))]
+    assert finished == ["finished"] * 3
+    assert assert_loopback_only(tree(os.getpid())) >= 2

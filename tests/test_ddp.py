@@ -89,3 +89,16 @@ def test_a_global_batch_that_does_not_split_is_one_line(tmp_path):
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "--batch-size 101" in lines[0], stderr
     assert not (tmp_path / "run").exists()  # refused before anything was written
+
+
+def test_a_nan_on_the_ranks_stops_every_rank_at_once(tmp_path):
+    out = tmp_path / "run"
+    proc = fit(
+        DATASET, "--nproc", 2, "--lr-start", 1e30, "--lr-end", 1e30, "--steps", 200, "--eval-every", 50, "--out", out
+    )
+    _, stderr = proc.communicate(timeout=180)
+    assert proc.returncode == 1, stderr
+    lines = [ln for ln in stderr.splitlines() if "error" in ln]
+    assert len(lines) == 1 and "NaN" in lines[0], stderr
+    status = RunDir.open(out).status()
+    assert status["state"] == "failed" and "NaN" in status["message"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -169,13 +170,17 @@ def test_a_run_does_not_depend_on_how_a_sweep_groups_or_places_it(tmp_path):
     assert one.exit_code == 0, one.output
     two = smtrain(*base, "--out", tmp_path / "three", "--max-ensemble", 3, "--workers", 2)
     assert two.exit_code == 0, two.output
-    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    from tests.servers import processes_marked
+
+    marker = f"sweep-{os.getpid()}-{tmp_path.name}"
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0", "SMSPACE_TEST_MARK": marker}
     env.pop("RAY_ADDRESS", None)
     ray_args = [*map(str, base), "--out", str(tmp_path / "one"), "--max-ensemble", "1", "--workers", "2"]
     ray = subprocess.run(
         [str(BIN / "smtrain"), *ray_args, "--executor", "ray"], capture_output=True, text=True, env=env, timeout=600
     )
     assert ray.returncode == 0, ray.stderr
+    assert processes_marked(marker) == []  # the local Ray the sweep started is gone with it
     names = sorted(p.name for p in (tmp_path / "six").iterdir())
     assert len(names) == 6
     for name in names:
@@ -191,3 +196,33 @@ def test_a_run_does_not_depend_on_how_a_sweep_groups_or_places_it(tmp_path):
             for ra, rb in zip(a, b, strict=True):  # D_topo ranks neighbours: 1e-4 in h moves it most
                 for key, rel in (("eval_loss", 1e-3), ("d_topo", 1e-2), ("d_metric", 1e-2)):
                     assert ra[key] == pytest.approx(rb[key], rel=rel, abs=1e-6), key
+
+
+def test_report_keeps_studies_apart_and_projects_wide_h(tmp_path):
+    """Runs of two N_h are two studies: separate curves and rows, never one mean; h of N_h > 3 is
+    drawn as its first three principal components."""
+    from train.report import first_three
+
+    runs = []
+    for n_h in (3, 5):
+        for mode in ("MEM", "MM"):
+            cfg = replace(config(mode, 7, steps=20), n_h=n_h, eval_every=10)
+            run = RunDir.create(tmp_path / f"{mode}-nh{n_h}", cfg, False)
+            fit(cfg, run)
+            runs.append(run.path)
+    result = smtrain("report", *runs, "--out", tmp_path / "report")
+    assert result.exit_code == 0, result.output
+    names = {p.name for p in (tmp_path / "report").iterdir()}
+    assert {"grid-nh3_curves.png", "grid-nh5_curves.png", "grid-nh5_projection_MM.png"} <= names
+    with open(tmp_path / "report" / "final.csv") as fh:
+        rows = [(r["setup"], r["n_h"], r["mode"], r["runs"]) for r in csv.DictReader(fh)]
+    assert rows == [
+        ("grid", "3", "MEM", "1"),
+        ("grid", "3", "MM", "1"),
+        ("grid", "5", "MEM", "1"),
+        ("grid", "5", "MM", "1"),
+    ]
+    h = np.random.default_rng(0).normal(size=(50, 5)) * [5, 3, 2, 0.1, 0.1]
+    shown, how = first_three(h)
+    assert shown.shape == (50, 3) and "PCA to 3 of 5" in how
+    assert np.allclose(first_three(h[:, :2])[0][:, 2], 0) and first_three(h[:, :2])[1] == ""

@@ -25,10 +25,17 @@ class RunData:
     run: RunDir
     mode: str
     rows: list[dict[str, Any]]
+    setup: str = ""
+    n_h: int = 3
 
     @property
     def name(self) -> str:
         return self.run.name
+
+    @property
+    def study(self) -> str:
+        """What may be averaged together: one setup at one N_h (modes are compared within it)."""
+        return f"{self.setup or 'unknown'}-nh{self.n_h}"
 
     def column(self, key: str) -> np.ndarray:
         return np.array([r[key] for r in self.rows], np.float64)
@@ -42,9 +49,20 @@ def load_runs(paths: list[Path]) -> list[RunData]:
         if not rows:
             raise SmspaceError(f"{path} has no evaluations yet")
         cfg = run.config
-        mode = cfg.mode or Dataset(cfg.dataset).manifest.mode  # run folders of smspace 0.1 lack the mode
-        runs.append(RunData(run, mode, rows))
+        if cfg.mode and cfg.setup:
+            mode, setup = cfg.mode, cfg.setup
+        else:  # run folders of smspace 0.1 lack them
+            manifest = Dataset(cfg.dataset).manifest
+            mode, setup = manifest.mode, manifest.setup
+        runs.append(RunData(run, mode, rows, setup, cfg.n_h))
     return runs
+
+
+def by_study(runs: list[RunData]) -> dict[str, list[RunData]]:
+    groups: dict[str, list[RunData]] = defaultdict(list)
+    for r in runs:
+        groups[r.study].append(r)
+    return dict(sorted(groups.items()))
 
 
 def by_mode(runs: list[RunData]) -> dict[str, list[RunData]]:
@@ -104,9 +122,9 @@ def projection_figure(run: RunData, path: Path) -> None:
         ax.text2D(0.1, 0.5, "dataset not available", transform=ax.transAxes)
     ax.set_title("motor space (normalised regular sampling)")
     ax = fig.add_subplot(1, 4, 2, projection="3d")
-    h3 = np.pad(h[:, :3], ((0, 0), (0, max(0, 3 - h.shape[1]))))
+    h3, shown = first_three(h)
     ax.scatter(*h3.T, s=8, color="tab:red")
-    ax.set_title(f"encoding space h   D_topo = {last['d_topo']:.2e}")
+    ax.set_title(f"encoding space h{shown}   D_topo = {last['d_topo']:.2e}")
     ax = fig.add_subplot(1, 4, 3)
     for a, b in zip(p, h_hat, strict=True):
         ax.plot([a[0], b[0]], [a[1], b[1]], color="tab:red", linewidth=0.5, alpha=0.6)
@@ -127,10 +145,22 @@ def projection_figure(run: RunData, path: Path) -> None:
     plt.close(fig)
 
 
+def first_three(h: np.ndarray) -> tuple[np.ndarray, str]:
+    """h as 3 coordinates to draw, and how: itself (padded) up to N_h = 3, else its first three
+    principal components (D_topo and D_metric always use all of h)."""
+    if h.shape[1] <= 3:
+        return np.pad(h, ((0, 0), (0, 3 - h.shape[1]))), ""
+    centred = h - h.mean(0)
+    _, s, vt = np.linalg.svd(centred, full_matrices=False)
+    kept = float((s[:3] ** 2).sum() / max((s**2).sum(), 1e-300))
+    return centred @ vt[:3].T, f" (PCA to 3 of {h.shape[1]} dims, {kept:.0%} of variance)"
+
+
 def final_table(groups: dict[str, list[RunData]]) -> list[dict[str, Any]]:
     table = []
     for mode, runs in groups.items():
-        row: dict[str, Any] = {"mode": mode, "runs": len(runs), "step": int(min(r.rows[-1]["step"] for r in runs))}
+        row: dict[str, Any] = {"setup": runs[0].setup, "n_h": runs[0].n_h, "mode": mode, "runs": len(runs)}
+        row["step"] = int(min(r.rows[-1]["step"] for r in runs))
         for key, _ in METRICS:
             values = np.array([r.rows[-1][key] for r in runs])
             row[f"{key}_mean"], row[f"{key}_std"] = float(values.mean()), float(values.std())
@@ -145,14 +175,17 @@ def write_tables(runs: list[RunData], table: list[dict[str, Any]], out: Path) ->
         writer.writerows(table)
     with open(out / "runs.csv", "w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow(["run", "mode", "step", "eval_loss", "d_topo", "d_metric"])
+        writer.writerow(["run", "setup", "n_h", "mode", "step", "eval_loss", "d_topo", "d_metric"])
         for r in runs:
             last = r.rows[-1]
-            writer.writerow([r.name, r.mode, last["step"], last["eval_loss"], last["d_topo"], last["d_metric"]])
-    lines = ["| mode | runs | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|"]
+            writer.writerow(
+                [r.name, r.setup, r.n_h, r.mode, last["step"], last["eval_loss"], last["d_topo"], last["d_metric"]]
+            )
+    lines = ["| setup | N_h | mode | runs | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|---|---|"]
     for row in table:
         cells = [f"{row[f'{k}_mean']:.3g} ± {row[f'{k}_std']:.2g}" for k, _ in METRICS]
-        lines.append(f"| {row['mode']} | {row['runs']} | {row['step']} | " + " | ".join(cells) + " |")
+        head = f"| {row['setup']} | {row['n_h']} | {row['mode']} | {row['runs']} | {row['step']} | "
+        lines.append(head + " | ".join(cells) + " |")
     (out / "final.md").write_text("\n".join(lines) + "\n")
 
 
@@ -161,13 +194,19 @@ def report(paths: list[Path], out: Path) -> list[Path]:
 
     matplotlib.use("Agg")
     runs = load_runs(paths)
-    groups = by_mode(runs)
+    studies = by_study(runs)
     out.mkdir(parents=True, exist_ok=True)
-    curves_figure(groups, out / "curves.png")
-    written = [out / "curves.png"]
-    for mode, group in groups.items():
-        path = out / f"projection_{mode}.png"
-        projection_figure(group[0], path)
-        written.append(path)
-    write_tables(runs, final_table(groups), out)
+    written, table = [], []
+    for study, members in studies.items():
+        # one study keeps the plain names; several are told apart by a prefix and never averaged together
+        prefix = "" if len(studies) == 1 else f"{study}_"
+        groups = by_mode(members)
+        curves_figure(groups, out / f"{prefix}curves.png")
+        written.append(out / f"{prefix}curves.png")
+        for mode, group in groups.items():
+            path = out / f"{prefix}projection_{mode}.png"
+            projection_figure(group[0], path)
+            written.append(path)
+        table += final_table(groups)
+    write_tables(runs, table, out)
     return [*written, out / "final.csv", out / "final.md", out / "runs.csv"]
