@@ -23,6 +23,18 @@ LAKE_OPTION = click.option(
 )
 
 
+def executor_option(what: str) -> Callable:
+    """--executor of the commands that fan out: local processes (the default: nothing to install or
+    start) or Ray."""
+    return click.option(
+        "--executor",
+        type=click.Choice(["local", "ray"]),
+        default="local",
+        show_default=True,
+        help=f"Where {what}: local processes, or Ray ($RAY_ADDRESS, else a local Ray on --workers CPUs).",
+    )
+
+
 def fail(message: str, code: int = 2) -> None:
     prog = click.get_current_context(silent=True)
     name = prog.find_root().info_name if prog else Path(sys.argv[0]).name

@@ -8,7 +8,15 @@ from pathlib import Path
 
 import click
 
-from common.cli import LAKE_OPTION, OneLineErrors, default_workers, display_name, echo_listing, friendly_errors
+from common.cli import (
+    LAKE_OPTION,
+    OneLineErrors,
+    default_workers,
+    display_name,
+    echo_listing,
+    executor_option,
+    friendly_errors,
+)
 from common.errors import SmspaceError
 from common.rerun_output import view_options
 from datagen.setups import SETUPS
@@ -38,13 +46,7 @@ def main() -> None:
 )
 @click.option("--shard-size", type=int, default=None, help="Transitions per shard [grid 32768, arm 8192].")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
-@click.option(
-    "--executor",
-    type=click.Choice(["local", "ray"]),
-    default="local",
-    show_default=True,
-    help="Where parts run: local processes, or Ray ($RAY_ADDRESS, else a local Ray on --workers cores).",
-)
+@executor_option("the parts are drawn")
 @click.option("--gpus-per-task", type=click.FloatRange(0, 64), default=0.0, help="Ray: GPUs per part (SAPIEN on CUDA).")
 @click.option(
     "--rank", type=click.IntRange(min=0), default=0, help="This task's rank in a job array (with --world-size)."

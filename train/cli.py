@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from common.cli import LAKE_OPTION, OneLineErrors, display_name, echo_listing, friendly_errors
+from common.cli import LAKE_OPTION, OneLineErrors, display_name, echo_listing, executor_option, friendly_errors
 from common.errors import SmspaceError
 from common.rerun_output import view_options
 from lake.manifest import MAX_WORLDS, SEED_MAX
@@ -232,13 +232,7 @@ def _attempt(action, fallback):
     "--max-ensemble", type=click.IntRange(1, 10_000), default=150, show_default=True, help="Runs per vectorised model."
 )
 @click.option("--overwrite", is_flag=True, help="Replace runs in --out made with another config.")
-@click.option(
-    "--executor",
-    type=click.Choice(["local", "ray"]),
-    default="local",
-    show_default=True,
-    help="Where ensembles train: local processes, or Ray ($RAY_ADDRESS, else a local Ray on --workers CPUs).",
-)
+@executor_option("ensembles train")
 @click.option(
     "--workers",
     type=click.IntRange(min=1),
