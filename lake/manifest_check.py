@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 from typing import Any
 
 from lake.manifest import REGULAR_FILE, SEED_MAX, SHARD_FILE, GenConfig, shard_name
-from lake.store import LocalStore
 from lake.transitions import MODES
 
 DTYPES = ("float32", "uint8")
@@ -116,9 +114,3 @@ def _check_normalisation(raw: dict[str, Any]) -> str | None:
         if any(a > b for a, b in zip(lo, hi, strict=True)):
             return f"normalisation {prefix}_min exceeds {prefix}_max"
     return None
-
-
-def dataset_file(folder: Path, name: str) -> Path:
-    """A file of a local dataset: a regular file directly inside its folder, never a link, device or
-    FIFO (FileNotFoundError when absent, DatasetCorrupt when anything but a regular file)."""
-    return LocalStore(folder).file(name)

@@ -135,14 +135,6 @@ def regular_sampling_bytes(m: np.ndarray, p: np.ndarray) -> bytes:
     return fh.getvalue()
 
 
-def write_shard(path: Path, blocks: Sequence[Block], metadata: dict[str, str]) -> None:
-    LocalStore(path.parent).put(path.name, shard_bytes(blocks, metadata))
-
-
-def write_regular_sampling(path: Path, m: np.ndarray, p: np.ndarray) -> None:
-    LocalStore(path.parent).put(path.name, regular_sampling_bytes(m, p))
-
-
 class ShardReader:
     """Reads one shard; keep one open per shard and worker (re-reading the summary is costly).
 
