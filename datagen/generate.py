@@ -90,8 +90,6 @@ def _files_as_recorded(folder: Store) -> bool:
 
 def plan_dataset(lake: Store, cfg: GenConfig, overwrite: bool, share: Share = Share()) -> Plan:
     folder = lake.child(cfg.dataset_id)
-    if folder.is_file():
-        raise SmspaceError(f"{folder} exists and is not a folder")
     recorded = _recorded_hash(folder)
     if recorded is not None and recorded != cfg.config_hash:
         if not overwrite:

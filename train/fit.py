@@ -82,6 +82,13 @@ def fit(cfg: TrainConfig, run: RunDir, resume: bool = False, ranks: Ranks = SING
     device = resolve_device(cfg.device)
     if ranks.primary:
         run.claim()  # before anything is recorded: a run another process trains is left untouched
+    try:
+        return _fit_claimed(cfg, run, resume, ranks, device)
+    finally:
+        run.release()  # the lock ends with the training, not whenever the RunDir is collected
+
+
+def _fit_claimed(cfg: TrainConfig, run: RunDir, resume: bool, ranks: Ranks, device) -> dict[str, Any] | None:
     with recorded_outcome([run] if ranks.primary else []):
         member = open_member(run, cfg, device, ranks)
         manifest = member.dataset.manifest
