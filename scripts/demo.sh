@@ -2,10 +2,12 @@
 # The main job end to end on small defaults: generate one grid world in its three modes, validate
 # the datasets, train a short run on each, print the final loss, D_topo and D_metric, draw the
 # paper's figures and write rerun recordings of the data and of what was learned.
-# Usage: bash scripts/demo.sh [LAKE] [RUNS]   (defaults data/lake and runs)
+# Usage: bash scripts/demo.sh [LAKE] [RUNS]   (defaults data/demo-lake and runs)
+# The demo has a lake of its own: its datasets are shorter (30000 transitions) than the studies'
+# (scripts/reproduce.sh, 150000) under the same ids, and one lake refuses to hold both.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-LAKE=${1:-data/lake}
+LAKE=${1:-data/demo-lake}
 RUNS=${2:-runs}
 BIN=.venv/bin
 
