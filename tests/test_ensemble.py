@@ -222,6 +222,8 @@ def test_report_keeps_studies_apart_and_projects_wide_h(tmp_path):
         ("grid", "5", "MEM", "1"),
         ("grid", "5", "MM", "1"),
     ]
+    table = (tmp_path / "report" / "final.md").read_text()
+    assert "| grid | 5 | MM | 1 | 20 |" in table and "±" not in table  # one run has no spread to show
     h = np.random.default_rng(0).normal(size=(50, 5)) * [5, 3, 2, 0.1, 0.1]
     shown, how = first_three(h)
     assert shown.shape == (50, 3) and "PCA to 3 of 5" in how

@@ -168,6 +168,11 @@ def final_table(groups: dict[str, list[RunData]]) -> list[dict[str, Any]]:
     return table
 
 
+def _mean_std(mean: float, std: float, runs: int) -> str:
+    """One run has no spread to show; "± 0" would claim one."""
+    return f"{mean:.3g}" if runs == 1 else f"{mean:.3g} ± {std:.2g}"
+
+
 def write_tables(runs: list[RunData], table: list[dict[str, Any]], out: Path) -> None:
     with open(out / "final.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(table[0]))
@@ -183,7 +188,7 @@ def write_tables(runs: list[RunData], table: list[dict[str, Any]], out: Path) ->
             )
     lines = ["| setup | N_h | mode | runs | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|---|---|"]
     for row in table:
-        cells = [f"{row[f'{k}_mean']:.3g} ± {row[f'{k}_std']:.2g}" for k, _ in METRICS]
+        cells = [_mean_std(row[f"{k}_mean"], row[f"{k}_std"], row["runs"]) for k, _ in METRICS]
         head = f"| {row['setup']} | {row['n_h']} | {row['mode']} | {row['runs']} | {row['step']} | "
         lines.append(head + " | ".join(cells) + " |")
     (out / "final.md").write_text("\n".join(lines) + "\n")
