@@ -12,11 +12,13 @@
 #   arm6        the six-motor arm, 3 worlds × 3 modes × 30000 steps
 #   reports     every figure and table under docs/reproduction/
 #   new         grid-nh25, grid6, arm-more, arm6, then reports (both cores for each sweep)
-# Full size on a cluster: add --executor ray (with RAY_ADDRESS set), --worlds 50 and --steps 100000,
-# and an s3:// --lake and --out (README, "Scaling out").
+#   rest        grid6, arm-more, arm6, then reports (what was left of `new` after a restart)
+#   full        every study at the paper's size (50 worlds × 100000 steps) on a Ray cluster, with
+#               the lake and the runs on object storage (README, "Scaling out"); not run here:
+#               RAY_ADDRESS=ray://head:10001 WORKERS=256 bash scripts/reproduce.sh full s3://b/lake s3://b/runs
 set -euo pipefail
 cd "$(dirname "$0")/.."
-STAGE=${1:?give a stage: grid, arm, grid-nh25, grid6, arm-more, arm6, reports, new}
+STAGE=${1:?give a stage: grid, arm, grid-nh25, grid6, arm-more, arm6, reports, new, rest, full}
 LAKE=${2:-data/lake}
 RUNS=${3:-runs/repro}
 BIN=.venv/bin
@@ -35,6 +37,16 @@ arm6() {
   "$BIN/smgen" generate --setup arm6 --mode all --worlds 3 --seed 0 --lake "$LAKE" --workers "$CORES"
   "${SWEEP[@]}" --setup arm6 --worlds 3 --seed 0 --steps 30000 --out "$RUNS/arm6"
 }
+full() {
+  : "${RAY_ADDRESS:?full runs on a Ray cluster: set RAY_ADDRESS}"
+  local ray=(--executor ray --workers "${WORKERS:-64}")
+  for setup in grid grid6 arm arm6; do
+    "$BIN/smgen" generate --setup "$setup" --mode all --worlds 50 --seed 0 --lake "$LAKE" "${ray[@]}"
+    "$BIN/smtrain" sweep --setup "$setup" --worlds 50 --steps 100000 --lake "$LAKE" --out "$RUNS/$setup" "${ray[@]}"
+  done
+  "$BIN/smtrain" sweep --setup grid --worlds 50 --steps 100000 --nh 25 --lake "$LAKE" --out "$RUNS/grid-nh25" "${ray[@]}"
+  echo "reports: $BIN/smtrain report $RUNS/<study>/<run>... --out docs/reproduction/<study> (run folders: smtrain ls --runs $RUNS/<study>)"
+}
 reports() {
   for study in grid arm grid-nh25 grid6 arm-more arm6; do
     if compgen -G "$RUNS/$study/*/metrics.parquet" >/dev/null; then
@@ -51,6 +63,7 @@ case "$STAGE" in
   arm-more) arm_more ;;
   arm6) arm6 ;;
   reports) reports ;;
+  full) full ;;
   new) grid_nh25; grid6; arm_more; arm6; reports ;;
   rest) grid6; arm_more; arm6; reports ;;
   *) echo "unknown stage $STAGE" >&2; exit 2 ;;
