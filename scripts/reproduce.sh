@@ -11,6 +11,7 @@
 #               MEM-vs-MM order of D_metric is the question; MME adds nothing to it)
 #   arm6        the six-motor arm, 3 worlds × 3 modes × 30000 steps, 150000 transitions per dataset
 #   reports     every figure and table under docs/reproduction/
+#   arm-ambiguity  how alike the views of each arm room are, beside the arm runs' metrics (1 min)
 #   new         grid-nh25, grid6, arm-more, arm6, then reports (both cores for each sweep)
 #   rest        grid6, arm-more, arm6, then reports (what was left of `new` after a restart)
 #   full        every study at the paper's size (50 worlds × 100000 steps) on a Ray cluster, with
@@ -18,7 +19,7 @@
 #               RAY_ADDRESS=ray://head:10001 WORKERS=256 bash scripts/reproduce.sh full s3://b/lake s3://b/runs
 set -euo pipefail
 cd "$(dirname "$0")/.."
-STAGE=${1:?give a stage: grid, arm, grid-nh25, grid6, arm-more, arm6, reports, new, rest, full}
+STAGE=${1:?give a stage: grid, arm, grid-nh25, grid6, arm-more, arm6, reports, arm-ambiguity, new, rest, full}
 LAKE=${2:-data/lake}
 RUNS=${3:-runs/repro}
 BIN=.venv/bin
@@ -46,6 +47,10 @@ full() {
   "$BIN/smtrain" sweep --setup grid --worlds 50 --steps 100000 --nh 25 --lake "$LAKE" --out "$RUNS/grid-nh25" "${ray[@]}"
   echo "reports: $BIN/smtrain report $RUNS/<study>/<run>... --out docs/reproduction/<study> (run folders: smtrain ls --runs $RUNS/<study>)"
 }
+arm_ambiguity() {
+  "$BIN/python" scripts/arm_ambiguity.py --seeds 0-5 --lake data/ambiguity-lake \
+    --runs docs/reproduction/arm/runs.csv --runs docs/reproduction/arm-more/runs.csv > docs/reproduction/arm-ambiguity.json
+}
 reports() {
   for study in grid arm grid-nh25 grid6 arm-more arm6; do
     if compgen -G "$RUNS/$study/*/metrics.parquet" >/dev/null; then
@@ -63,6 +68,7 @@ case "$STAGE" in
   arm6) arm6 ;;
   reports) reports ;;
   full) full ;;
+  arm-ambiguity) arm_ambiguity ;;
   new) grid_nh25; grid6; arm_more; arm6; reports ;;
   rest) grid6; arm_more; arm6; reports ;;
   *) echo "unknown stage $STAGE" >&2; exit 2 ;;
