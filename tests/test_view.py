@@ -165,6 +165,8 @@ def test_web_viewer_binds_loopback_and_ctrl_c_stops_everything():
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, **RERUN_ENV},
+        # as from a terminal: a suite run as a background job (`pytest &`) passes SIGINT down ignored
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         deadline, body = time.time() + 60, None
