@@ -9,7 +9,7 @@
 #   grid6       the six-motor grid, 3 worlds × 3 modes × 30000 steps, encoder 500-400-300-200
 #   arm-more    the arm with 3 more worlds (seeds 3-5) × 100000 steps, MEM and MM only (the
 #               MEM-vs-MM order of D_metric is the question; MME adds nothing to it)
-#   arm6        the six-motor arm, 3 worlds × 3 modes × 30000 steps, 150000 transitions per dataset
+#   arm6        the six-motor arm, 3 worlds × 3 modes × 30000 steps, 75000 transitions per dataset
 #   reports     every figure and table under docs/reproduction/
 #   arm-ambiguity  how alike the views of each arm room are, beside the arm runs' metrics (1 min)
 #   new         grid-nh25, grid6, arm-more, arm6, then reports (both cores for each sweep)
@@ -34,11 +34,11 @@ arm() {
 grid_nh25() { "${SWEEP[@]}" --setup grid --worlds 10 --seed 0 --steps 100000 --nh 25 --out "$RUNS/grid-nh25"; }
 grid6() { "${SWEEP[@]}" --setup grid6 --worlds 3 --seed 0 --steps 30000 --out "$RUNS/grid6"; }
 arm_more() { "${SWEEP[@]}" --modes MEM,MM --setup arm --worlds 3 --seed 3 --steps 100000 --out "$RUNS/arm-more"; }
-# 150000 transitions per arm6 dataset, half the setup's 300000: rendering 2.7 M images would take
-# 100 min of the two cores (30000 steps of batch 100 still visit each transition 20 times). An
-# evaluation every 2000 steps: D_topo/D_metric over 15625 regular states cost 5 s per run each.
+# 75000 transitions per arm6 dataset, a quarter of the setup's 300000, and an evaluation every 3000
+# steps: on two cores, rendering 2.7 M images takes 100 min and each evaluation over the 15625
+# regular states 5 s per run (30000 steps of batch 100 still visit each transition 40 times).
 arm6() {
-  "${SWEEP[@]}" --setup arm6 --worlds 3 --seed 0 --steps 30000 --transitions 150000 --eval-every 2000 \
+  "${SWEEP[@]}" --setup arm6 --worlds 3 --seed 0 --steps 30000 --transitions 75000 --eval-every 3000 \
     --out "$RUNS/arm6"
 }
 full() {
