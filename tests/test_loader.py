@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from torch.utils.data import DataLoader
 
@@ -94,6 +95,37 @@ def test_resume_with_dataloader_workers():
     resumed.load_state_dict({"seed": 2, "batch_size": 100, "batches_consumed": 13})
     tail = rows_of(take(DataLoader(resumed, batch_size=None, num_workers=2), 17))
     np.testing.assert_array_equal(tail, full[1300:])
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_a_loop_of_ones_own_resumes_exactly_through_a_stateful_dataloader(workers):
+    """The documented way (docs/API.md): checkpoint torchdata's StatefulDataLoader, which collects
+    each worker's own stream state. Read in the main process, the stream's state_dict() knows
+    nothing of what workers delivered; the loader's does."""
+    from torchdata.stateful_dataloader import StatefulDataLoader
+
+    def loader() -> StatefulDataLoader:
+        return StatefulDataLoader(TransitionStream(DATASET, seed=2, window=1), batch_size=None, num_workers=workers)
+
+    full = rows_of(take(loader(), 30))
+    first = loader()
+    it = iter(first)
+    head = rows_of([next(it) for _ in range(13)])
+    state = first.state_dict()
+    del it
+    resumed = loader()
+    resumed.load_state_dict(state)
+    tail = rows_of(take(resumed, 17))
+    np.testing.assert_array_equal(np.vstack([head, tail]), full)
+
+
+def test_a_worker_state_refuses_another_number_of_consumers():
+    stream = TransitionStream(DATASET, seed=2, window=1)
+    stream.load_state_dict(
+        {"seed": 2, "batch_size": 100, "batches_consumed": 0, "consumer": {"index": 0, "count": 3, "delivered": 4}}
+    )
+    with pytest.raises(ValueError, match="3 consumers resumed by 2"):
+        take(DataLoader(stream, batch_size=None, num_workers=2), 1)
 
 
 def _rank_rows(rank: int, world: int, port: int, out: str) -> None:

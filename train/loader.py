@@ -7,6 +7,12 @@ workers) takes units g, g+G, … — so within an epoch no transition is read tw
 consumer shuffles rows inside windows of `window` units and cuts its row stream into batches.
 Everything is a function of (seed, g, G, rows consumed), so resuming needs only a batch count.
 Only (m_t, s_t, m_t1, s_t1) leave the loader: the privileged ground truth never reaches a model.
+
+Resuming a loop of your own: read in the main process, `state_dict()` counts only the batches the
+main process itself drew. Under a DataLoader with workers each worker holds its own copy of the
+stream, so checkpoint the loader instead: torchdata's `StatefulDataLoader` collects every worker's
+`state_dict()` (its consumer role and the batches it delivered) and gives each its own back on
+`load_state_dict` (docs/API.md, "Resuming your own loop").
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -77,15 +84,29 @@ class TransitionStream(IterableDataset):
         self.units = dataset_units(self.dataset.manifest)
         self.m_norm, self.s_norm = normalisers(self.dataset.manifest)
         self.batches_consumed = 0  # batches already delivered before this iterator starts
+        # inside a DataLoader worker: (consumer index, consumer count, batches this worker delivered)
+        self._consumer: tuple[int, int, int] | None = None
+        self._restored_consumer: tuple[int, int, int] | None = None  # from load_state_dict, for the next iterator
 
     # -- resumable state ------------------------------------------------------------------
-    def state_dict(self) -> dict[str, int]:
-        return {"seed": self.seed, "batch_size": self.batch_size, "batches_consumed": self.batches_consumed}
+    def state_dict(self) -> dict[str, Any]:
+        """Where the stream is: the batches the main process drew; inside a DataLoader worker (as
+        StatefulDataLoader asks for it) also this worker's own role and count."""
+        state: dict[str, Any] = {"seed": self.seed, "batch_size": self.batch_size}
+        state["batches_consumed"] = self.batches_consumed
+        if self._consumer is not None:
+            g, n_consumers, delivered = self._consumer
+            state["consumer"] = {"index": g, "count": n_consumers, "delivered": delivered}
+        return state
 
-    def load_state_dict(self, state: dict[str, int]) -> None:
+    def load_state_dict(self, state: dict[str, Any]) -> None:
         if state["seed"] != self.seed or state["batch_size"] != self.batch_size:
             raise ValueError("stream state belongs to another seed or batch size")
         self.batches_consumed = int(state["batches_consumed"])
+        consumer = state.get("consumer")
+        self._restored_consumer = (
+            None if consumer is None else (int(consumer["index"]), int(consumer["count"]), int(consumer["delivered"]))
+        )
 
     # -- the stream -------------------------------------------------------------------------
     def _epoch_units(self, epoch: int, g: int, n_consumers: int) -> list[Unit]:
@@ -122,11 +143,21 @@ class TransitionStream(IterableDataset):
 
         A DataLoader takes batches from its workers round-robin, starting with worker 0. After
         N batches the next one is due from role N mod W, so on resume worker w plays role
-        (w + N) mod W: the merged stream continues exactly where it stopped.
+        (w + N) mod W: the merged stream continues exactly where it stopped. A worker whose own
+        state was restored (StatefulDataLoader) continues its recorded role instead.
         """
         rank, world = self.rank, self.world_size
         info = get_worker_info()
         w, n_workers = (info.id, info.num_workers) if info else (0, 1)
+        restored, self._restored_consumer = self._restored_consumer, None
+        if info is not None and restored is not None:
+            g, n_consumers, delivered = restored
+            if n_consumers != world * n_workers:
+                raise ValueError(
+                    f"stream state of {n_consumers} consumers resumed by {world * n_workers} "
+                    "(ranks x DataLoader workers); resume with as many"
+                )
+            return g, n_consumers, delivered
         n = self.batches_consumed
         role = (w + n) % n_workers
         delivered = -(-(n - role) // n_workers) if n > role else 0
@@ -135,6 +166,8 @@ class TransitionStream(IterableDataset):
     def __iter__(self) -> Iterator[tuple[torch.Tensor, ...]]:
         g, n_consumers, delivered = self._role()
         info = get_worker_info()
+        if info is not None:
+            self._consumer = (g, n_consumers, delivered)
         skip_rows = delivered * self.batch_size
         readers: dict[int, ShardReader] = {}
         pending: list[tuple[np.ndarray, ...]] = []
@@ -156,17 +189,23 @@ class TransitionStream(IterableDataset):
                 pending_rows += len(cols[0])
                 while pending_rows >= self.batch_size:
                     batch, pending, pending_rows = _take(pending, self.batch_size)
-                    if info is None:
-                        self.batches_consumed += 1
+                    self._count_delivered(info is not None)
                     yield batch
             if pending_rows:  # finite streams end with a partial batch
                 batch, pending, pending_rows = _take(pending, pending_rows)
-                if info is None:
-                    self.batches_consumed += 1
+                self._count_delivered(info is not None)
                 yield batch
         finally:
             for reader in readers.values():
                 reader.close()
+
+    def _count_delivered(self, in_worker: bool) -> None:
+        """Counted before the batch leaves, so a state taken right after it includes it."""
+        if in_worker:
+            g, n_consumers, delivered = self._consumer
+            self._consumer = (g, n_consumers, delivered + 1)
+        else:
+            self.batches_consumed += 1
 
 
 def _take(pending: list[tuple[np.ndarray, ...]], n: int):
