@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.numerical  # float64 blockwise sums against a brute force: any CPU kind
+
 import metrics.spatial as spatial
 from datagen.setups.grid import GridWorld
 from metrics import affine_projection, spatial_scores

@@ -99,6 +99,7 @@ def test_learning_rate_schedule():
     assert learning_rate(cfg, 80_000) == pytest.approx(1e-5) and learning_rate(cfg, 99_999) == pytest.approx(1e-5)
 
 
+@pytest.mark.numerical
 def test_killed_run_resumes_bit_identical(tmp_path):
     args = ["grid-seed0-MM", "--lake", SAMPLES, "--steps", 2000, "--eval-every", 100, "--seed", 4]
     clean, killed = tmp_path / "clean", tmp_path / "killed"
@@ -136,6 +137,7 @@ def test_killed_run_resumes_bit_identical(tmp_path):
     np.testing.assert_array_equal(RunDir.open(clean).embeddings(2000)[0], RunDir.open(killed).embeddings(2000)[0])
 
 
+@pytest.mark.numerical
 def test_same_seed_same_run_other_seed_other_run(tmp_path):
     a = fit("grid-seed0-MEM", tmp_path / "a", "--steps", 100, "--eval-every", 100, "--seed", 7)
     b = fit("grid-seed0-MEM", tmp_path / "b", "--steps", 100, "--eval-every", 100, "--seed", 7)
