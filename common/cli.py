@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import functools
@@ -9,12 +10,12 @@ import json
 import os
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import click
 
-from common.errors import SmspaceError
+from common.errors import Interrupted, SmspaceError
 
 LAKE_OPTION = click.option(
     "--lake",
@@ -55,6 +56,18 @@ def friendly_errors(fn: Callable) -> Callable:
     return wrapper
 
 
+@contextlib.contextmanager
+def on_interrupt(message: str) -> Iterator[None]:
+    """Ctrl-C or SIGTERM inside the block ends the command with `message` (what was kept and how to
+    continue) instead of a bare "interrupted"."""
+    try:
+        yield
+    except Interrupted:
+        raise
+    except KeyboardInterrupt:
+        raise Interrupted(message) from None
+
+
 def default_workers() -> int:
     """The cores this process may use: the default number of generator processes."""
     try:
@@ -90,8 +103,9 @@ class OneLineErrors(click.Group):
             prog = kwargs.get("prog_name") or Path(sys.argv[0]).name
             click.echo(f"{prog}: error: {' '.join(e.format_message().split())}", err=True)
             sys.exit(2)
-        except click.Abort:  # Ctrl-C or SIGTERM: whatever the command started is stopped by now
-            click.echo("interrupted", err=True)
+        except click.Abort as e:  # Ctrl-C or SIGTERM: whatever the command started is stopped by now
+            cause = e.__cause__
+            click.echo(cause.message if isinstance(cause, Interrupted) else "interrupted", err=True)
             sys.exit(130)
         sys.exit(code if isinstance(code, int) else 0)
 

@@ -11,3 +11,12 @@ class SmspaceError(Exception):
 
 class DatasetCorrupt(SmspaceError):
     """A shard or manifest that cannot be trusted (truncated, bit-flipped, inconsistent)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM, with what was kept and the command that continues: the CLIs print the
+    message in one line (exit 130) instead of a bare "interrupted"."""
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.message = message

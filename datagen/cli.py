@@ -16,6 +16,7 @@ from common.cli import (
     echo_listing,
     executor_option,
     friendly_errors,
+    on_interrupt,
 )
 from common.errors import SmspaceError
 from common.rerun_output import view_options
@@ -33,7 +34,7 @@ def main() -> None:
 @click.option(
     "--setup", "setup_name", required=True, help="; ".join(f"{s.name}: {s.description}" for s in SETUPS.values())
 )
-@click.option("--mode", required=True, help="MEM, MM, MME, or all.")
+@click.option("--mode", required=True, help="MEM, MM, MME, several separated by commas, or all.")
 @click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=1, help="Number of worlds; seeds SEED, SEED+1, …")
 @click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, help="Seed of the first world.")
@@ -77,31 +78,32 @@ def generate(
     from datagen.executors import ExecutorOptions
     from datagen.generate import Share
     from datagen.generate import generate as run
-    from datagen.setups import MODES, check_mode, get_setup
+    from datagen.setups import get_setup, parse_modes
     from lake.dataset import open_lake
 
     setup = get_setup(setup_name)
     if seed + worlds - 1 > SEED_MAX:
         raise SmspaceError(f"--seed {seed} with --worlds {worlds} passes the largest world seed, {SEED_MAX}")
-    modes = list(MODES) if mode == "all" else [check_mode(mode)]
+    modes = parse_modes(mode)
     n = setup.default_transitions if transitions is None else transitions
     shard_size = setup.default_shard_size if shard_size is None else shard_size
     store = open_lake(lake)
     share = Share(rank, world_size)
     options = ExecutorOptions(workers=workers or default_workers(), gpus_per_task=gpus_per_task)
     seeds = range(seed, seed + worlds)
-    results = run(
-        store,
-        setup.name,
-        modes,
-        seeds,
-        n,
-        shard_size,
-        overwrite=overwrite,
-        executor=executor,
-        share=share,
-        options=options,
-    )
+    with on_interrupt("interrupted; the parts already stored are kept: the same command completes the datasets"):
+        results = run(
+            store,
+            setup.name,
+            modes,
+            seeds,
+            n,
+            shard_size,
+            overwrite=overwrite,
+            executor=executor,
+            share=share,
+            options=options,
+        )
     if not share.whole:
         ids = " ".join(f"{setup.name}-seed{s}-{m}" for s in seeds for m in modes)
         click.echo(
@@ -142,6 +144,8 @@ def ls_(lake, as_json) -> None:
     store = open_lake(lake)
     if store.is_file():
         raise SmspaceError(f"lake path {store} is a file, not a folder")
+    if not store.is_folder():  # a mistyped name must not look like an empty lake
+        raise SmspaceError(f"no lake at {store} (nothing was generated there; --lake or $SMSPACE_LAKE names it)")
     echo_listing(
         read_catalog(store).to_pylist(),
         as_json,

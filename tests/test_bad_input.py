@@ -160,3 +160,37 @@ def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):
     assert "No space left on device" in line and "shard-00000.mcap" in line
     folder = tmp_path / "grid-seed0-MM"
     assert not list(folder.glob("shard-*")) and not (folder / "manifest.json").exists()
+
+
+def test_a_mistyped_lake_is_not_an_empty_listing(tmp_path):
+    line = one_error_line(smgen("ls", "--lake", tmp_path / "no-such-lake"))
+    assert "no lake at" in line and "no-such-lake" in line
+    assert not (tmp_path / "no-such-lake").exists()
+
+
+def test_ctrl_c_during_generation_says_how_to_complete_it(tmp_path):
+    import signal
+    import subprocess
+    import time
+
+    from .conftest import BIN
+
+    lake = tmp_path / "lake"
+    args = ["generate", "--setup", "grid", "--mode", "MM", "--transitions", "3000000", "--workers", "1"]
+    proc = subprocess.Popen(
+        [str(BIN / "smgen"), *args, "--lake", str(lake)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as from a terminal
+    )
+    deadline = time.time() + 60
+    while time.time() < deadline and not list(lake.glob("grid-seed0-MM/shard-*.mcap")):
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1] == (
+        "interrupted; the parts already stored are kept: the same command completes the datasets"
+    )
+    assert not (lake / "grid-seed0-MM" / "manifest.json").exists()

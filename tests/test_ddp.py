@@ -54,7 +54,7 @@ def test_two_ranks_train_one_run_with_identical_weights_on_loopback_only(tmp_pat
 
 def test_killed_two_rank_run_resumes_on_two_ranks_only(tmp_path):
     out = tmp_path / "run"
-    args = [DATASET, "--nproc", 2, "--steps", 3000, "--eval-every", 50, "--out", out]
+    args = [DATASET, "--nproc", 2, "--steps", 1000, "--eval-every", 50, "--out", out]
     proc = fit(*args)
     try:
         deadline = time.monotonic() + 300
@@ -66,7 +66,7 @@ def test_killed_two_rank_run_resumes_on_two_ranks_only(tmp_path):
     finally:
         stop_group(proc)
     killed_at = RunDir.open(out).checkpoint_step()
-    assert 100 <= killed_at < 3000
+    assert 100 <= killed_at < 1000
 
     alone = subprocess.run(
         [str(BIN / "smtrain"), "fit", "--resume", str(out)], capture_output=True, text=True, timeout=120
@@ -74,12 +74,12 @@ def test_killed_two_rank_run_resumes_on_two_ranks_only(tmp_path):
     assert alone.returncode == 2 and alone.stderr.count("\n") == 1
     assert "trained on 2 process(es)" in alone.stderr
 
-    again = fit("--resume", out, "--nproc", 2, "--steps", killed_at + 100)
+    again = fit("--resume", out, "--nproc", 2)
     stdout, stderr = again.communicate(timeout=300)
     assert again.returncode == 0, stderr
     steps = [r["step"] for r in RunDir.open(out).metrics()]
-    assert steps == list(range(0, killed_at + 101, 50))  # no step lost, none written twice
-    assert json.loads(stdout.splitlines()[-1])["step"] == killed_at + 100
+    assert steps == list(range(0, 1001, 50))  # no step lost, none written twice
+    assert json.loads(stdout.splitlines()[-1])["step"] == 1000
 
 
 def test_a_global_batch_that_does_not_split_is_one_line(tmp_path):

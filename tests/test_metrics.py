@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.numerical  # float64 blockwise sums against a brute force: any CPU kind
-
 import metrics.spatial as spatial
 from datagen.setups.grid import GridWorld
 from metrics import affine_projection, spatial_scores
+
+pytestmark = pytest.mark.numerical  # float64 blockwise sums against a brute force: any CPU kind
 
 
 def brute_force(h: np.ndarray, p: np.ndarray, alpha: float = 50.0) -> tuple[float, float]:

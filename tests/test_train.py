@@ -8,6 +8,7 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -225,3 +226,124 @@ def test_cuda_without_gpu(tmp_path):
 def test_resume_flags_are_checked(tmp_path):
     assert "is not a run folder" in one_error_line(smtrain("fit", "--resume", tmp_path / "none"))
     assert "DATASET is required" in one_error_line(smtrain("fit"))
+
+
+def test_more_loader_readers_than_data_is_one_line_before_anything_is_written(tmp_path):
+    """1000 transitions are one batch unit: two loader workers (or two ranks) cannot share it."""
+    from .conftest import smgen
+
+    lake = tmp_path / "lake"
+    assert smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 1000, "--lake", lake).exit_code == 0
+    line = one_error_line(
+        smtrain("fit", "grid-seed0-MM", "--lake", lake, "--loader-workers", 2, "--out", tmp_path / "r")
+    )
+    assert "1 batch unit(s)" in line and "--loader-workers" in line and not (tmp_path / "r").exists()
+    proc = subprocess.run(
+        [
+            str(BIN / "smtrain"),
+            "fit",
+            "grid-seed0-MM",
+            "--lake",
+            str(lake),
+            "--nproc",
+            "2",
+            "--out",
+            str(tmp_path / "d"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr  # said by the launcher, no gloo
+    assert "fewer than the 2 readers of 2 process(es)" in proc.stderr and not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--encoder-layers", "150,,50"], "expected comma-separated layer sizes"),
+        (["--modes", "MEM,,MM"], "has an empty entry"),
+        (["--modes", "MM,MM"], "names a mode twice"),
+        (["--modes", "XM"], "unknown mode 'XM'"),
+    ],
+)
+def test_bad_sweep_flags_are_one_line(tmp_path, args, needle):
+    result = smtrain("sweep", "--setup", "grid", *args, "--lake", tmp_path / "lake", "--out", tmp_path / "runs")
+    assert needle in one_error_line(result)
+    assert not (tmp_path / "lake").exists() and not (tmp_path / "runs").exists()
+
+
+def test_sweep_modes_all_is_every_mode(tmp_path):
+    result = smtrain(
+        "sweep", "--setup", "grid", "--modes", "all", "--worlds", 1, "--transitions", 1200, "--steps", 2,
+        "--eval-every", 2, "--lake", tmp_path / "lake", "--out", tmp_path / "runs", "--workers", 1,
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir() if p.is_dir()) == [
+        f"grid-seed0-{m}-nh3-seed0" for m in ("MEM", "MM", "MME")
+    ]
+
+
+def test_a_ray_sweep_without_ray_says_so_before_generating(tmp_path):
+    code = (
+        "import sys; sys.modules['ray'] = None\n"  # as if the cluster extra were not installed
+        "from train.cli import main\n"
+        f"sys.argv = ['smtrain', 'sweep', '--setup', 'grid', '--worlds', '1', '--executor', 'ray', "
+        f"'--lake', {str(tmp_path / 'lake')!r}, '--out', {str(tmp_path / 'runs')!r}]\n"
+        "main()\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert "pip install 'smspace[cluster]'" in proc.stderr
+    assert not (tmp_path / "lake").exists() and not (tmp_path / "runs").exists()
+
+
+def test_a_mistyped_runs_folder_is_not_an_empty_listing(tmp_path):
+    line = one_error_line(smtrain("ls", "--runs", tmp_path / "no-such-runs"))
+    assert "no run folders at" in line and "no-such-runs" in line
+    (tmp_path / "empty").mkdir()
+    assert smtrain("ls", "--runs", tmp_path / "empty").exit_code == 0  # an existing folder without runs is empty
+
+
+def test_ctrl_c_says_which_checkpoint_is_kept_and_how_to_resume(tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [str(BIN / "smtrain"), "fit", "grid-seed0-MM", "--lake", str(SAMPLES), "--steps", "100000",
+         "--eval-every", "100", "--out", str(out)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as from a terminal
+    )  # fmt: skip
+    deadline = time.time() + 120
+    while time.time() < deadline and not ((out / "checkpoint.pt").exists() and RunDir(out).checkpoint_step() >= 200):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    step = RunDir.open(out).checkpoint_step()
+    last = stderr.strip().splitlines()[-1]
+    assert last == f"interrupted; its checkpoint of step {step} is kept: smtrain fit --resume {out}", stderr
+    status = RunDir.open(out).status()
+    assert status["state"] == "interrupted" and str(step) in status["message"]
+
+
+def test_ctrl_c_of_a_sweep_says_the_same_command_resumes_it(tmp_path):
+    out = tmp_path / "runs"
+    proc = subprocess.Popen(
+        [str(BIN / "smtrain"), "sweep", "--setup", "grid", "--modes", "MM", "--worlds", "2", "--transitions", "2500",
+         "--steps", "100000", "--eval-every", "50", "--lake", str(tmp_path / "lake"), "--out", str(out),
+         "--workers", "1", "--gen-workers", "1"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    deadline = time.time() + 120
+    while time.time() < deadline and not list(out.glob("*/checkpoint.pt")):
+        time.sleep(0.05)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1] == (
+        f"interrupted; the runs in {out} keep their last checkpoints and the lake its complete parts: "
+        "the same command resumes them"
+    )
+    assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"interrupted"}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -13,8 +14,16 @@ from typing import TYPE_CHECKING
 
 import click
 
-from common.cli import LAKE_OPTION, OneLineErrors, display_name, echo_listing, executor_option, friendly_errors
-from common.errors import SmspaceError
+from common.cli import (
+    LAKE_OPTION,
+    OneLineErrors,
+    display_name,
+    echo_listing,
+    executor_option,
+    friendly_errors,
+    on_interrupt,
+)
+from common.errors import Interrupted, SmspaceError
 from common.rerun_output import view_options
 from lake.manifest import MAX_WORLDS, SEED_MAX
 from train.config import MAX_LAYERS, MAX_WIDTH
@@ -29,9 +38,9 @@ def int_list(ctx, param, value: str | None) -> list[int] | None:
     if value is None:
         return None
     try:
-        sizes = [int(v) for v in value.split(",") if v.strip()]
+        sizes = [int(v) for v in value.split(",")]  # "150,,50" is a typo, not two layers
     except ValueError:
-        raise click.BadParameter(f"expected comma-separated layer sizes, got {value!r}") from None
+        raise click.BadParameter(f"expected comma-separated layer sizes such as 150,100,50, got {value!r}") from None
     if not sizes or min(sizes) <= 0:
         raise click.BadParameter(f"expected positive layer sizes, got {value!r}")
     if len(sizes) > MAX_LAYERS or max(sizes) > MAX_WIDTH:
@@ -127,19 +136,34 @@ def main() -> None:
 def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     """Train on DATASET (a folder or an id in the lake); prints the final metrics. Under torchrun,
     one run on all its processes (DDP); --batch-size is then the global batch."""
-    from train.distributed import STORE_ENV, join_from_environment, leave
+    from train.distributed import STORE_ENV, all_ok, join_from_environment, leave
+    from train.fit import fit as run_fit
+    from train.fit import plan_fit
     from train.launch import launch_local
     from train.run_dir import RunDir
 
+    ctx = click.get_current_context()
+    given = [_flag_name(f) for f in _flag_fields() if _on_command_line(ctx, f.name)]
+    template = config_from_flags(flags)
     if nproc > 1 and STORE_ENV not in os.environ:  # this process only launches the ranks
         if "WORLD_SIZE" in os.environ:
             raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
-        sys.exit(launch_local(nproc, [sys.executable, "-m", "train.cli", *sys.argv[1:]]))
-    ctx = click.get_current_context()
-    device = RunDir.open(resume_dir).config.device if resume_dir is not None else flags["device"]
-    ranks = join_from_environment(device)  # under torchrun: this rank of the process group
+        plan = plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, nproc)  # refused before any rank
+        with _resume_hint(plan.where, nproc):
+            sys.exit(launch_local(nproc, [sys.executable, "-m", "train.cli", *sys.argv[1:]]))
+    world = int(os.environ.get("WORLD_SIZE", "1") or 1)
+    plan = plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, world)  # the same on every rank
+    ranks = join_from_environment(plan.cfg.device)  # under torchrun: this rank of the process group
     try:
-        result, run = _fit_ranked(ctx, dataset, lake, out, resume_dir, overwrite, flags, ranks)
+        run, problem = None, None
+        if ranks.primary:
+            if plan.change:
+                click.echo(plan.change, err=True)
+            run, problem = _attempt(plan.start)
+        if not all_ok(problem is None, ranks):  # no rank waits forever for a rank 0 that gave up
+            raise problem or SmspaceError("rank 0 could not prepare the run folder (see its error)")
+        with _resume_hint(plan.where, ranks.world) if ranks.primary else contextlib.nullcontext():
+            result = run_fit(plan.cfg, run or RunDir(plan.where), resume=plan.resume, ranks=ranks)
     finally:
         leave(ranks)
     if ranks.primary:
@@ -147,68 +171,45 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
         click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
 
 
-def _fit_ranked(ctx, dataset, lake, out, resume_dir, overwrite, flags, ranks):
-    """The body of `fit` on one rank: rank 0 alone creates or rewrites the run folder."""
-    from dataclasses import replace
+@contextlib.contextmanager
+def _resume_hint(where: str, world: int):
+    """Ctrl-C or SIGTERM: say which step the kept checkpoint holds and the command that resumes."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        from train.run_dir import RunDir
 
-    from lake.dataset import Dataset
-    from train.config import check_resources, flag_fields
-    from train.distributed import all_ok, per_rank_batch
-    from train.fit import fit as run_fit
-    from train.fit import resolve_device
-    from train.run_dir import RunDir
-
-    if resume_dir is not None:
-        given = [
-            _flag_name(f)
-            for f in flag_fields()
-            if f.name != "steps" and ctx.get_parameter_source(f.name) == click.core.ParameterSource.COMMANDLINE
-        ]
-        if dataset or given or overwrite:
-            raise SmspaceError(f"--resume continues a run with its own config; drop {' '.join(given) or 'DATASET'}")
-        run = RunDir.open(resume_dir)
-        cfg = run.config
-        if cfg.world_size != ranks.world:
-            raise SmspaceError(
-                f"{run.path} was trained on {cfg.world_size} process(es); resume it on as many "
-                f"(torchrun --nproc-per-node {cfg.world_size}), not {ranks.world}"
-            )
-        if ctx.get_parameter_source("steps") == click.core.ParameterSource.COMMANDLINE:
-            cfg = replace(cfg, steps=flags["steps"])  # extending a run; the schedule stays as recorded
-        problem = None
-        if ranks.primary and cfg.steps != run.config.steps:
-            _, problem = _attempt(lambda: run.write_config(cfg), None)
-        if not all_ok(problem is None, ranks):
-            raise problem or SmspaceError("rank 0 could not update the run folder (see its error)")
-        return run_fit(cfg, run, resume=True, ranks=ranks), run
-    if dataset is None:
-        raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
-    ds = Dataset.open(dataset, lake)
-    cfg = replace(config_from_flags(flags).for_dataset(ds.store, ds.manifest), world_size=ranks.world)
-    resolve_device(cfg.device)
-    check_resources(cfg, ds.manifest)
-    per_rank_batch(cfg.batch_size, ranks)  # before the run folder exists
-    path = out or f"{RUNS}/{cfg.run_name}"
-    run, problem = RunDir(path), None
-    if ranks.primary:
-        run, problem = _attempt(lambda: RunDir.create(path, cfg, overwrite), run)
-    if not all_ok(problem is None, ranks):  # no rank waits forever for a rank 0 that gave up
-        raise problem or SmspaceError("rank 0 could not create the run folder (see its error)")
-    return run_fit(cfg, run, ranks=ranks), run
+        try:
+            step = RunDir.open(where).checkpoint_step()
+        except (SmspaceError, OSError):
+            raise Interrupted(f"interrupted before {where} was created") from None
+        nproc = f" --nproc {world}" if world > 1 else ""
+        kept = f"its checkpoint of step {step} is kept" if step else "it had no checkpoint yet"
+        raise Interrupted(f"interrupted; {kept}: smtrain fit --resume {where}{nproc}") from None
 
 
-def _attempt(action, fallback):
-    """(what the action returned, None), or (fallback, its error): the error is raised only once
-    every rank knows about it."""
+def _flag_fields():
+    from train.config import flag_fields
+
+    return flag_fields()
+
+
+def _on_command_line(ctx: click.Context, name: str) -> bool:
+    return ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
+
+
+def _attempt(action):
+    """(what the action returned, None), or (None, its error): the error is raised only once every
+    rank knows about it."""
     try:
         return action(), None
     except SmspaceError as e:
-        return fallback, e
+        return None, e
 
 
 @main.command()
 @click.option("--setup", "setup_name", required=True, help="grid, grid6, arm, arm6")
-@click.option("--modes", default="MEM,MM,MME", show_default=True)
+@click.option("--modes", default="MEM,MM,MME", show_default=True, help="Comma-separated modes, or all.")
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
 @click.option(
     "--seed",
@@ -257,29 +258,36 @@ def sweep(
 ) -> None:
     """Generate missing datasets, then train every (world, mode) run as vectorised ensembles."""
     from common.cli import default_workers
-    from datagen.setups import check_mode, get_setup
+    from datagen.setups import get_setup, parse_modes
     from lake.dataset import open_lake
     from train.fit import resolve_device
     from train.sweep import sweep as run_sweep
 
     get_setup(setup_name)
-    mode_list = [check_mode(m.strip()) for m in modes.split(",") if m.strip()]
+    mode_list = parse_modes(modes)
     template = config_from_flags(flags)
     resolve_device(template.device)
-    runs = run_sweep(
-        setup_name,
-        mode_list,
-        list(range(first_world, first_world + worlds)),
-        template,
-        open_lake(lake),
-        out,
-        transitions,
-        gen_workers or default_workers(),
-        max_ensemble,
-        overwrite,
-        executor,
-        workers or default_workers(),
+    message = (
+        f"interrupted; the runs in {out} keep their last checkpoints and the lake its complete parts: "
+        "the same command resumes them"
     )
+    with on_interrupt(message):
+        runs = run_sweep(
+            setup_name,
+            mode_list,
+            list(range(first_world, first_world + worlds)),
+            template,
+            open_lake(lake),
+            out,
+            transitions,
+            gen_workers or default_workers(),
+            max_ensemble,
+            overwrite,
+            executor,
+            workers or default_workers(),
+            explicit=frozenset(f.name for f in _flag_fields() if _on_command_line(click.get_current_context(), f.name)),
+            notify=lambda line: click.echo(line, err=True),
+        )
     for run in runs:
         click.echo(display_name(str(run.path)))
 
@@ -349,6 +357,8 @@ def ls_(runs, as_json) -> None:
     from lake.store import open_store
 
     folder = open_store(runs)
+    if not folder.is_folder():  # a mistyped name must not look like a folder without runs
+        raise SmspaceError(f"no run folders at {folder} (--runs names the folder holding them)")
     echo_listing(
         [_listed(folder.child(path.split("/")[0])) for path in folder.list(f"*/{CONFIG}")],
         as_json,

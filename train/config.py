@@ -41,6 +41,7 @@ class TrainConfig:
     dataset_id: str = ""
     dataset_config_hash: str = ""
     dataset_shards_sha256: str = ""  # sha256 over the shards' recorded sha256s: a regenerated dataset differs
+    dataset_transitions: int = 0  # its size: runs on datasets of other sizes are not one study
     setup: str = ""
     mode: str = ""
     # the flags
@@ -61,6 +62,8 @@ class TrainConfig:
     eval_transitions: int = 4096  # the fixed set the evaluation loss is computed on
     shuffle_window: int = 8
     world_size: int = 1  # processes training this one run (torchrun); a resume needs the same
+    # how the run was extended (train/terms.py, rule 3): [{"from_steps": …, "to_steps": …}, …]
+    extensions: list[dict[str, int]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         for name in ("lr_start", "lr_end"):
@@ -87,18 +90,20 @@ class TrainConfig:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in raw.items() if k in known})
 
+    def for_setup(self, setup: str, transitions: int) -> TrainConfig:
+        """This config for datasets of one setup and size: what a study's runs share."""
+        encoder = self.encoder_layers or default_encoder_layers(setup)
+        return replace(self, setup=setup, dataset_transitions=transitions, encoder_layers=list(encoder))
+
     def for_dataset(self, folder: Store | Path, manifest) -> TrainConfig:
         """This config bound to a dataset: its identity, setup, mode and the setup's default encoder."""
-        encoder = self.encoder_layers or default_encoder_layers(manifest.setup)
         return replace(
-            self,
+            self.for_setup(manifest.setup, manifest.transitions),
             dataset=canonical(folder if isinstance(folder, Store) else open_store(Path(folder))),
             dataset_id=manifest.dataset_id,
             dataset_config_hash=manifest.config_hash,
             dataset_shards_sha256=manifest.shards_digest,
-            setup=manifest.setup,
             mode=manifest.mode,
-            encoder_layers=list(encoder),
         )
 
 
@@ -155,6 +160,14 @@ def check_resources(cfg: TrainConfig, manifest, runs: int = 1) -> None:
         raise SmspaceError(
             f"--batch-size {cfg.batch_size} is larger than the dataset ({manifest.transitions} transitions)"
         )
+    units = unit_count(manifest)
+    consumers = cfg.world_size * max(1, cfg.loader_workers)
+    if units < consumers:  # the loader gives each consumer whole batch units of ~1024 transitions
+        raise SmspaceError(
+            f"dataset {manifest.dataset_id} has {units} batch unit(s) of {manifest.config['batch_size']} transitions, "
+            f"fewer than the {consumers} readers of {cfg.world_size} process(es) x {max(1, cfg.loader_workers)} "
+            "loader worker(s); use fewer --loader-workers"
+        )
     needed = memory_needed(cfg, manifest.n_motor, n_sensor, manifest.regular_sampling["count"], runs)
     free = available_memory()
     if needed > free:
@@ -162,6 +175,12 @@ def check_resources(cfg: TrainConfig, manifest, runs: int = 1) -> None:
             f"{runs} run(s) of this config need about {needed / 2**30:.1f} GiB of memory; "
             f"{free / 2**30:.1f} GiB are available"
         )
+
+
+def unit_count(manifest) -> int:
+    """The loader's units of work (one batch message each) in a dataset."""
+    batch = manifest.config["batch_size"]
+    return sum(-(-shard["transitions"] // batch) for shard in manifest.shards)
 
 
 def learning_rate(cfg: TrainConfig, step: int) -> float:

@@ -8,20 +8,78 @@ The loop itself is `train.loop`; this file is the lone model behind it.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import torch
 from torch.nn.parallel import DistributedDataParallel
 
-from train.config import TrainConfig
-from train.distributed import SINGLE, Ranks, ranks_agree
+from common.errors import SmspaceError
+from lake.dataset import Dataset
+from train.config import TrainConfig, check_resources
+from train.distributed import SINGLE, Ranks, per_rank_batch, ranks_agree
 from train.evaluation import N_PREDICTIONS, EvalData
 from train.loop import TrainingFailed, open_member, recorded_outcome, resolve_device, resume_members, train
 from train.model import SensorimotorNet, prediction_loss
 from train.run_dir import RunDir
+from train.terms import resumed
 
-__all__ = ["SingleLearner", "TrainingFailed", "build", "fit", "resolve_device"]
+__all__ = ["FitPlan", "SingleLearner", "TrainingFailed", "build", "fit", "plan_fit", "resolve_device"]
+RUNS = "runs"  # where a run goes without --out: runs/<dataset>-nh<N>-seed<S>
+
+
+@dataclass(frozen=True)
+class FitPlan:
+    """A checked fit: what to train, where, and what changed (said once, by rank 0)."""
+
+    cfg: TrainConfig
+    where: str
+    resume: bool
+    overwrite: bool = False
+    change: str | None = None  # an extension of a resumed run (train/terms.py, rule 3)
+
+    def start(self) -> RunDir:
+        """Create the run folder, or record the extension of a resumed one (rank 0 alone)."""
+        if not self.resume:
+            return RunDir.create(self.where, self.cfg, self.overwrite)
+        run = RunDir.open(self.where)
+        if self.change is not None:
+            run.write_config(self.cfg)
+        return run
+
+
+def plan_fit(
+    template: TrainConfig,
+    dataset: str | None,
+    lake: str | None,
+    out: str | None,
+    resume: str | None,
+    overwrite: bool,
+    given: list[str],
+    world: int,
+) -> FitPlan:
+    """Every check of `smtrain fit` before anything is written: the same on every rank, and in the
+    launcher of --nproc before any rank starts. `given`: the flags on the command line."""
+    if resume is not None:
+        extra = [name for name in given if name != "--steps"]
+        if dataset or extra or overwrite:
+            raise SmspaceError(f"--resume continues a run with its own config; drop {' '.join(extra) or 'DATASET'}")
+        run = RunDir.open(resume)
+        steps = template.steps if "--steps" in given else None
+        cfg, change = resumed(run.config, str(run.path), steps, world)
+        check_resources(cfg, Dataset(cfg.dataset).manifest)
+        return FitPlan(cfg, str(run.path), resume=True, change=change)
+    if dataset is None:
+        raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
+    ds = Dataset.open(dataset, lake)
+    cfg = replace(template.for_dataset(ds.store, ds.manifest), world_size=world)
+    resolve_device(cfg.device)
+    check_resources(cfg, ds.manifest)
+    per_rank_batch(cfg.batch_size, Ranks(0, world))
+    where = out or f"{RUNS}/{cfg.run_name}"
+    RunDir.creatable(where, overwrite)
+    return FitPlan(cfg, str(where), resume=False, overwrite=overwrite)
 
 
 def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):

@@ -224,7 +224,9 @@ def recorded_outcome(runs: list[RunDir]) -> Iterator[None]:
         _mark(runs, "failed", str(e))
         raise
     except KeyboardInterrupt:
-        _mark(runs, "interrupted", "interrupted; resume with --resume")
+        for run in runs:
+            step = run.status()["step"]  # the step of the last evaluation, hence of the checkpoint
+            run.set_status("interrupted", step, f"interrupted; the checkpoint of step {step} is kept: resume it")
         raise
     except Exception as e:
         _mark(runs, "failed", f"{type(e).__name__}: {e}")

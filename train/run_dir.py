@@ -106,6 +106,17 @@ class RunDir:
     # -- lifecycle ------------------------------------------------------------------------
     @classmethod
     def create(cls, where: Path | str | Store, cfg: TrainConfig, overwrite: bool) -> RunDir:
+        run = cls.creatable(where, overwrite)
+        run.store.make()
+        run.claim()
+        if run.store.exists(CONFIG):
+            run._clear()
+        run.write_config(cfg)
+        return run
+
+    @classmethod
+    def creatable(cls, where: Path | str | Store, overwrite: bool) -> RunDir:
+        """The folder a new run may be created in (checked, nothing written)."""
         run = cls(where)
         if run.store.is_file():
             raise SmspaceError(f"output {run.path} is a file, not a folder")
@@ -113,11 +124,6 @@ class RunDir:
             raise SmspaceError(f"{run.path} already holds a run: pass --resume to continue it or --overwrite")
         if not overwrite and any(name != LOCK for name in _entries(run.store)):
             raise SmspaceError(f"{run.path} is not empty and holds no run; choose another --out")
-        run.store.make()
-        run.claim()
-        if run.store.exists(CONFIG):
-            run._clear()
-        run.write_config(cfg)
         return run
 
     def write_config(self, cfg: TrainConfig) -> None:
@@ -151,6 +157,14 @@ class RunDir:
             raise SmspaceError(f"{self.path} is not a run folder (no {CONFIG})") from None
         except (json.JSONDecodeError, UnicodeDecodeError, TypeError, AttributeError) as e:
             raise SmspaceError(f"{self.path}/{CONFIG} is unreadable ({type(e).__name__})") from e
+
+    def recorded_keys(self) -> set[str]:
+        """The config fields config.json holds (an older smspace recorded fewer)."""
+        try:
+            raw = json.loads(self._read(CONFIG))
+        except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
+            return set()
+        return set(raw) if isinstance(raw, dict) else set()
 
     # -- status ---------------------------------------------------------------------------
     def set_status(self, state: str, step: int, message: str = "") -> None:

@@ -7,12 +7,15 @@ from their checkpoints, grouped by the step they reached.
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from common.errors import SmspaceError
-from common.executors import in_processes, in_ray, ray_session
+from common.executors import import_ray, in_processes, in_ray, ray_session
 from datagen.generate import generate
 from datagen.setups import get_setup
 from lake.catalog import check_lake
@@ -21,35 +24,87 @@ from lake.store import Store, open_store
 from train.config import TrainConfig
 from train.ensemble import train_ensemble
 from train.run_dir import CONFIG, RunDir
+from train.terms import HISTORY, STUDY, differing, study_template, terms
 
-# What a re-run may change: more steps extend a study, with the learning-rate schedule as recorded.
-RESUMABLE = ("steps", "lr_decay_steps")
+
+def recorded_study(out: Store) -> dict[str, Any] | None:
+    """The terms of the study already in `out`: its study.json, else (a folder of an older smspace)
+    the terms its runs share; None for a new study."""
+    try:
+        return json.loads(out.read_bytes(STUDY))["terms"]
+    except FileNotFoundError:
+        pass
+    except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError) as e:
+        raise SmspaceError(
+            f"{out.url}/{STUDY} is unreadable ({type(e).__name__}); pass --overwrite to start anew"
+        ) from e
+    found: dict[str, dict[str, Any]] = {}
+    for path in out.list(f"*/{CONFIG}"):
+        run = RunDir.open(out.child(path.split("/")[0]))
+        recorded = run.recorded_keys()
+        found[run.name] = {k: v for k, v in terms(run.config).items() if k in recorded}
+    if not found:
+        return None
+    first_name, first = next(iter(found.items()))
+    for name, other in found.items():
+        diff = differing(first, other)
+        if diff:
+            raise SmspaceError(
+                f"{out.url} holds runs of several studies ({first_name} and {name} differ in {', '.join(diff)}); "
+                "use another --out"
+            )
+    return first
+
+
+def plan_study(
+    template: TrainConfig, setup: str, transitions: int, out: Store, overwrite: bool, explicit: frozenset[str]
+) -> tuple[TrainConfig, str | None]:
+    """The template every run of the study trains with (train/terms.py, rule 4), and the line
+    saying how the study changed; checked before any dataset is generated."""
+    recorded = None if overwrite else recorded_study(out)
+    return study_template(recorded, template.for_setup(setup, transitions), explicit, out.url)
 
 
 def plan_runs(
     template: TrainConfig, datasets: list[Store], out: Store | Path | str, overwrite: bool
 ) -> list[tuple[RunDir, int]]:
-    """(run folder, step it is at) for every dataset; creates new folders, checks old ones."""
+    """(run folder, step it is at) for every dataset of a planned study. Every run is checked
+    before anything is written; then study.json is recorded, new run folders created and
+    extended runs record their extension."""
     out = out if isinstance(out, Store) else open_store(out)
-    plans = []
-    for folder in datasets:
-        manifest = load_manifest(folder)
-        cfg = replace(template, seed=manifest.world_seed).for_dataset(folder, manifest)
+    manifests = [load_manifest(folder) for folder in datasets]
+    cfgs = [replace(template, seed=m.world_seed).for_dataset(f, m) for f, m in zip(datasets, manifests, strict=True)]
+    actions = []
+    for cfg in cfgs:
         path = out.child(cfg.run_name)
-        if path.exists(CONFIG) and not overwrite:
-            run = RunDir.open(path)
-            old = run.config.to_dict()
-            new = cfg.to_dict()
-            diff = [k for k in new if k not in RESUMABLE and old.get(k) != new[k]]
-            if diff:
-                raise SmspaceError(f"{path} holds a run with another {', '.join(diff)}; pass --overwrite or --out")
-            if old["steps"] != new["steps"]:  # extending a study: the schedule stays as recorded
-                run.write_config(replace(run.config, steps=cfg.steps))
-            step = run.checkpoint_step()
-            if step == 0:  # killed before its first checkpoint: start it afresh
-                run = RunDir.create(path, cfg, overwrite=True)
-        else:
-            run, step = RunDir.create(path, cfg, overwrite), 0
+        if overwrite or not path.exists(CONFIG):
+            actions.append((path, cfg, None))
+            continue
+        run = RunDir.open(path)
+        old = run.config
+        diff = differing(old.to_dict(), cfg.to_dict(), ignore=("steps", *HISTORY))
+        diff = [k for k in diff if k in run.recorded_keys()]  # a field an older smspace did not record is unknown
+        if diff:
+            raise SmspaceError(f"{path} holds a run with another {', '.join(diff)}; pass --overwrite or --out")
+        if cfg.steps < old.steps:  # the study's terms were checked: only a run made by hand lands here
+            raise SmspaceError(f"{path} holds a run of {old.steps} steps; this study has {cfg.steps}")
+        extended = None
+        if cfg.steps > old.steps:
+            extended = replace(cfg, extensions=[*old.extensions, {"from_steps": old.steps, "to_steps": cfg.steps}])
+        actions.append((path, cfg, (run, extended)))
+    out.make()
+    out.put(STUDY, (json.dumps({"terms": terms(cfgs[0])}, indent=1) + "\n").encode())
+    plans = []
+    for path, cfg, existing in actions:
+        if existing is None:
+            plans.append((RunDir.create(path, cfg, overwrite), 0))
+            continue
+        run, extended = existing
+        if extended is not None:
+            run.write_config(extended)
+        step = run.checkpoint_step()
+        if step == 0:  # killed before its first checkpoint: start it afresh
+            run = RunDir.create(path, extended or run.config, overwrite=True)
         plans.append((run, step))
     return plans
 
@@ -67,9 +122,19 @@ def sweep(
     overwrite: bool = False,
     executor: str = "local",
     workers: int = 1,
+    explicit: frozenset[str] = frozenset(),
+    notify: Callable[[str], None] = lambda line: None,
 ) -> list[RunDir]:
+    """`explicit`: the training flags the user gave; `notify`: where a change of the study's terms
+    (an extension) is said, before anything is generated or trained."""
     spec = get_setup(setup)
     n = spec.default_transitions if transitions is None else transitions
+    out = out if isinstance(out, Store) else open_store(out)
+    template, change = plan_study(template, setup, n, out, overwrite, explicit)
+    if executor == "ray":
+        import_ray()  # a missing Ray is said before any dataset is generated
+    if change:
+        notify(change)
     results = generate(lake, setup, modes, world_seeds, n, spec.default_shard_size, workers=gen_workers)
     datasets = [check_lake(lake).child(m.dataset_id) for m, _ in results]
     plans = plan_runs(template, datasets, out, overwrite)

@@ -23,4 +23,27 @@ def check_mode(mode: str) -> str:
     return mode
 
 
-__all__ = ["MODES", "SETUPS", "Setup", "Transitions", "World", "check_mode", "draw_transitions", "get_setup"]
+def parse_modes(text: str) -> list[str]:
+    """--mode / --modes: one mode, several separated by commas, or all."""
+    names = [m.strip() for m in text.split(",")]
+    if names == ["all"]:
+        return list(MODES)
+    if "" in names:
+        raise SmspaceError(f"--modes {text!r} has an empty entry (give e.g. MEM,MM or all)")
+    modes = [check_mode(m) for m in names]
+    if len(set(modes)) != len(modes):
+        raise SmspaceError(f"--modes {text!r} names a mode twice")
+    return modes
+
+
+__all__ = [
+    "MODES",
+    "SETUPS",
+    "Setup",
+    "Transitions",
+    "World",
+    "check_mode",
+    "draw_transitions",
+    "get_setup",
+    "parse_modes",
+]

@@ -1,0 +1,102 @@
+"""A run's terms: what its numbers depend on, and what may change when it is resumed, when its
+study is extended, or when runs are averaged. The one place these rules live (README, "Resuming
+and extending"); `smtrain fit --resume`, `smtrain sweep` and `smtrain report` apply them.
+
+1. Every field of a run's config is fixed when the run is created, but `steps`.
+2. `steps` may grow (the run is extended), never shrink: a shorter run is another run, since its
+   learning rate would stop mid-decay. `--resume` takes no other flag, and runs on as many
+   processes as the run was trained on (each rank reads its own share of the data).
+3. An extended run keeps the learning-rate schedule it recorded (`lr_decay_steps`): the command
+   says so in one line, and config.json lists the extension under `extensions`. A fresh run of
+   the same length decays over 80 % of it instead, so the two are different studies (rule 5).
+4. A sweep's output folder records its study's terms in `study.json` the first time. A re-run must
+   have the same terms but `steps`, which may grow for every run of the study, new worlds and
+   modes included; the study's recorded schedule then holds for all of them.
+5. Runs are averaged together only when they share every term but those that vary within a study
+   (`PER_RUN`: dataset, mode, seed) and how they were run (`EXECUTION`).
+
+Everything is checked before anything is written; what breaks a rule is refused in one line.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from typing import Any
+
+from common.errors import SmspaceError
+from train.config import TrainConfig
+
+PER_RUN = ("dataset", "dataset_id", "dataset_config_hash", "dataset_shards_sha256", "mode", "seed")
+EXECUTION = ("device", "threads", "loader_workers", "world_size")  # how a run ran, not what it computed
+HISTORY = ("extensions",)
+STUDY = "study.json"
+
+
+def terms(cfg: TrainConfig) -> dict[str, Any]:
+    """The fields that runs of one study share (rule 5)."""
+    return {k: v for k, v in cfg.to_dict().items() if k not in (*PER_RUN, *EXECUTION, *HISTORY)}
+
+
+def differing(a: dict[str, Any], b: dict[str, Any], ignore: tuple[str, ...] = ()) -> list[str]:
+    """The keys whose values differ (a key missing on one side differs)."""
+    return sorted(k for k in a.keys() | b.keys() if k not in ignore and a.get(k) != b.get(k))
+
+
+def schedule(cfg: TrainConfig) -> str:
+    return f"learning rate {cfg.lr_start:g} to {cfg.lr_end:g} over {cfg.lr_decay_steps} steps, then constant"
+
+
+def resumed(recorded: TrainConfig, where: str, steps: int | None, world_size: int) -> tuple[TrainConfig, str | None]:
+    """The config `--resume` continues with (rules 1-3), and the line that says what changed."""
+    if recorded.world_size != world_size:
+        raise SmspaceError(
+            f"{where} was trained on {recorded.world_size} process(es); resume it on as many "
+            f"(--nproc {recorded.world_size}, or torchrun --nproc-per-node {recorded.world_size}), not {world_size}"
+        )
+    if steps is None or steps == recorded.steps:
+        return recorded, None
+    if steps < recorded.steps:
+        raise SmspaceError(
+            f"--steps {steps} is fewer than the {recorded.steps} steps of {where}: a run is never shortened "
+            f"(its {schedule(recorded)}); train a new run with --steps {steps}"
+        )
+    extended = replace(
+        recorded, steps=steps, extensions=[*recorded.extensions, {"from_steps": recorded.steps, "to_steps": steps}]
+    )
+    return (
+        extended,
+        f"extending {where} from {recorded.steps} to {steps} steps on its recorded schedule ({schedule(recorded)})",
+    )
+
+
+def study_template(
+    recorded: dict[str, Any] | None, requested: TrainConfig, explicit: set[str], where: str
+) -> tuple[TrainConfig, str | None]:
+    """The template a sweep trains with (rule 4), and the line that says what changed. `recorded`:
+    the terms of the study already in the folder (None: a new study); `explicit`: the fields the
+    user gave (a schedule derived from --steps is not a request to change the recorded one)."""
+    if recorded is None:
+        return requested, None
+    asked = terms(requested)
+    steps = asked["steps"]
+    if steps < recorded["steps"]:
+        raise SmspaceError(
+            f"--steps {steps} is fewer than the {recorded['steps']} steps of the study in {where}: "
+            "a study is never shortened; use another --out"
+        )
+    if "lr_decay_steps" not in explicit:
+        asked["lr_decay_steps"] = recorded["lr_decay_steps"]  # rule 3: the study keeps its schedule
+    diff = differing(recorded, asked, ignore=("steps",))
+    if diff:
+        shown = ", ".join(f"{k} {json.dumps(recorded.get(k))} (asked {json.dumps(asked.get(k))})" for k in diff)
+        raise SmspaceError(
+            f"{where} holds a study with other terms: {shown}; keep them, use another --out, or pass --overwrite"
+        )
+    template = replace(requested, lr_decay_steps=asked["lr_decay_steps"])
+    if steps == recorded["steps"]:
+        return template, None
+    return template, (
+        f"extending the study in {where} from {recorded['steps']} to {steps} steps on its recorded schedule "
+        f"({schedule(template)})"
+    )
