@@ -128,22 +128,32 @@ def test_sweep_generates_trains_resumes_and_reports(tmp_path):
     report = tmp_path / "report"
     result = smtrain("report", *folders, "--out", report)
     assert result.exit_code == 0, result.output
+    # folders[1] was extended to 80 steps: another study, never averaged with the 60-step runs
+    assert "2 studies, kept apart" in result.stderr and "they differ in steps" in result.stderr
     for name in (
-        "curves.png",
-        "projection_MEM.png",
-        "projection_MM.png",
-        "projection_MME.png",
+        "grid-nh3-steps60_curves.png",
+        "grid-nh3-steps60_projection_MEM.png",
+        "grid-nh3-steps60_projection_MM.png",
+        "grid-nh3-steps60_projection_MME.png",
+        "grid-nh3-steps80_curves.png",
         "final.csv",
         "final.md",
         "runs.csv",
     ):
         assert (report / name).stat().st_size > 100, name
     with open(report / "final.csv") as fh:
-        rows = list(csv.DictReader(fh))
-    assert [r["mode"] for r in rows] == ["MEM", "MM", "MME"] and all(r["runs"] == "2" for r in rows)
+        rows = [(r["study"], r["mode"], r["runs"], r["step"]) for r in csv.DictReader(fh)]
+    assert rows == [
+        ("grid-nh3-steps60", "MEM", "2", "60"),
+        ("grid-nh3-steps60", "MM", "1", "60"),
+        ("grid-nh3-steps60", "MME", "2", "60"),
+        ("grid-nh3-steps80", "MM", "1", "80"),
+    ]
+    with open(report / "final.csv") as fh:
+        first = next(csv.DictReader(fh))
     mem = [RunDir.open(f).metrics()[-1]["d_metric"] for f in folders if "-MEM-" in f.name]
-    assert float(rows[0]["d_metric_mean"]) == pytest.approx(np.mean(mem))
-    assert "| MME | 2 |" in (report / "final.md").read_text()
+    assert float(first["d_metric_mean"]) == pytest.approx(np.mean(mem))
+    assert "| grid-nh3-steps60 | grid | 3 | MME | 2 | 60 |" in (report / "final.md").read_text()
 
 
 def test_report_needs_evaluated_runs(tmp_path):
@@ -254,3 +264,60 @@ def test_report_keeps_studies_apart_and_projects_wide_h(tmp_path):
     shown, how = first_three(h)
     assert shown.shape == (50, 3) and "PCA to 3 of 5" in how
     assert np.allclose(first_three(h[:, :2])[0][:, 2], 0) and first_three(h[:, :2])[1] == ""
+
+
+def final_rows(report_dir) -> list[dict]:
+    with open(report_dir / "final.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_report_never_averages_values_of_different_steps(tmp_path):
+    """One run of 40 steps evaluated every 10 and one of 80 every 20, on one dataset: before, the
+    table paired the first run's step 40 with the second's step 80 and the curves put the second
+    run's step 20 at step 10."""
+    a, b = RunDir.create(tmp_path / "a", config("MM", 1, 40, 10), False), None
+    fit(a.config, a)
+    b = RunDir.create(tmp_path / "b", config("MM", 2, 80, 20), False)
+    fit(b.config, b)
+    result = smtrain("report", a.path, b.path, "--out", tmp_path / "report")
+    assert result.exit_code == 0, result.output
+    assert "they differ in eval_every, lr_decay_steps, steps" in result.stderr
+    rows = {r["study"]: r for r in final_rows(tmp_path / "report")}
+    assert set(rows) == {
+        "grid-nh3-eval_every10-lr_decay_steps32-steps40",
+        "grid-nh3-eval_every20-lr_decay_steps64-steps80",
+    }
+    for run, study in (
+        (a, "grid-nh3-eval_every10-lr_decay_steps32-steps40"),
+        (b, "grid-nh3-eval_every20-lr_decay_steps64-steps80"),
+    ):
+        last = run.metrics()[-1]
+        assert (rows[study]["runs"], int(rows[study]["step"])) == ("1", last["step"])
+        assert float(rows[study]["eval_loss_mean"]) == last["eval_loss"]
+
+
+def test_report_of_runs_in_progress_compares_them_at_one_step(tmp_path):
+    """Two runs of one study, one stopped at step 40 of 60: both are reported at step 40, each
+    with its own value at step 40 (not the other's last row)."""
+    runs = []
+    for seed in (3, 4):
+        run = RunDir.create(tmp_path / f"r{seed}", config("MME", seed, 60, 20), False)
+        fit(run.config, run)
+        runs.append(run)
+    runs[1].write_metrics(runs[1].metrics()[:3])  # steps 0, 20, 40: as if still training
+    result = smtrain("report", *(r.path for r in runs), "--out", tmp_path / "report")
+    assert result.exit_code == 0, result.output
+    assert "shown up to step 40, the last every run reached (1 run(s) are further along)" in result.stderr
+    (row,) = final_rows(tmp_path / "report")
+    at_40 = [next(m for m in r.metrics() if m["step"] == 40)["d_metric"] for r in runs]
+    assert int(row["step"]) == 40 and float(row["d_metric_mean"]) == pytest.approx(np.mean(at_40))
+
+
+def test_report_refuses_the_same_run_twice(tmp_path):
+    run = RunDir.create(tmp_path / "a", config("MM", 1, 20, 10), False)
+    fit(run.config, run)
+    import shutil
+
+    shutil.copytree(run.path, tmp_path / "copy")
+    result = smtrain("report", run.path, tmp_path / "copy", "--out", tmp_path / "report")
+    assert result.exit_code == 2 and "are the same run" in result.output

@@ -300,7 +300,10 @@ def report(runs, out) -> None:
     """Draw the paper's figures and the table of final values from run folders."""
     from train.report import report as run_report
 
-    for path in run_report(list(runs), out):
+    written, notices = run_report(list(runs), out)
+    for line in notices:
+        click.echo(line, err=True)
+    for path in written:
         click.echo(str(path))
 
 

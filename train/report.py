@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import csv
+import json
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ from lake.dataset import Dataset
 from lake.normalise import normalisers
 from metrics import affine_projection
 from train.run_dir import RunDir
+from train.terms import differing, terms
 
 MODE_COLOURS = {"MEM": "tab:red", "MM": "tab:green", "MME": "tab:blue"}
 METRICS = (("eval_loss", "loss"), ("d_topo", "D_topo"), ("d_metric", "D_metric"))
@@ -27,22 +29,42 @@ class RunData:
     rows: list[dict[str, Any]]
     setup: str = ""
     n_h: int = 3
+    terms: dict[str, Any] = field(default_factory=dict)  # what its study's runs share (train/terms.py)
+    identity: tuple[str, int] = ("", 0)  # (dataset, seed): the same run twice is one run
 
     @property
     def name(self) -> str:
         return self.run.name
 
-    @property
-    def study(self) -> str:
-        """What may be averaged together: one setup at one N_h (modes are compared within it)."""
-        return f"{self.setup or 'unknown'}-nh{self.n_h}"
+    def values(self, key: str, steps: list[int]) -> np.ndarray:
+        """`key` at the given steps, by step (never by row position)."""
+        by_step = {int(r["step"]): r[key] for r in self.rows}
+        return np.array([by_step[s] for s in steps], np.float64)
 
-    def column(self, key: str) -> np.ndarray:
-        return np.array([r[key] for r in self.rows], np.float64)
+
+@dataclass
+class Study:
+    """Runs that may be averaged together: every term shared but dataset, mode and seed."""
+
+    name: str
+    runs: list[RunData]
+    steps: list[int]  # the evaluation steps every run reached, so every mean is of one step
+    differs: list[str] = field(default_factory=list)  # what sets it apart from the others reported
+
+    @property
+    def final_step(self) -> int:
+        return self.steps[-1]
+
+    @property
+    def label(self) -> str:
+        """What the study is, for titles: setup, N_h, worlds, steps."""
+        first = self.runs[0]
+        worlds = len({r.identity[0].rsplit("-", 1)[0] for r in self.runs})
+        return f"{first.setup}, N_h = {first.n_h}, {worlds} world(s), {first.terms.get('steps', '?')} steps"
 
 
 def load_runs(paths: list[Path]) -> list[RunData]:
-    runs = []
+    runs, seen = [], {}
     for path in paths:
         run = RunDir.open(path)
         rows = run.metrics()
@@ -54,15 +76,52 @@ def load_runs(paths: list[Path]) -> list[RunData]:
         else:  # run folders of smspace 0.1 lack them
             manifest = Dataset(cfg.dataset).manifest
             mode, setup = manifest.mode, manifest.setup
-        runs.append(RunData(run, mode, rows, setup, cfg.n_h))
+        recorded = run.recorded_keys()
+        data = RunData(
+            run,
+            mode,
+            rows,
+            setup,
+            cfg.n_h,
+            {k: v for k, v in terms(cfg).items() if k in recorded} | {"setup": setup},
+            (cfg.dataset_id or cfg.dataset, cfg.seed),
+        )
+        twin = seen.get((data.identity, json.dumps(data.terms, sort_keys=True)))
+        if twin is not None:
+            raise SmspaceError(
+                f"{path} and {twin} are the same run (dataset {data.identity[0]}, seed {data.identity[1]}, "
+                "same terms); report each run once"
+            )
+        seen[(data.identity, json.dumps(data.terms, sort_keys=True))] = path
+        runs.append(data)
     return runs
 
 
-def by_study(runs: list[RunData]) -> dict[str, list[RunData]]:
+def _shown(value: Any) -> str:
+    if isinstance(value, list):
+        return "x".join(map(str, value))
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def by_study(runs: list[RunData]) -> list[Study]:
+    """Runs grouped by their terms; studies are named by setup and N_h, and where two share those,
+    by the fields that tell them apart."""
     groups: dict[str, list[RunData]] = defaultdict(list)
     for r in runs:
-        groups[r.study].append(r)
-    return dict(sorted(groups.items()))
+        groups[json.dumps(r.terms, sort_keys=True, default=str)].append(r)
+    members = list(groups.values())
+    studies = []
+    for group in members:
+        first = group[0]
+        differs = sorted({k for other in members if other is not group for k in differing(first.terms, other[0].terms)})
+        name = f"{first.setup}-nh{first.n_h}"
+        kin = [g for g in members if (g[0].setup, g[0].n_h) == (first.setup, first.n_h)]
+        if len(kin) > 1:  # the same setup and N_h: the name says what else differs
+            within = sorted({k for other in kin if other is not group for k in differing(first.terms, other[0].terms)})
+            name += "".join(f"-{k}{_shown(first.terms.get(k))}" for k in within if k not in ("setup", "n_h"))
+        common = set.intersection(*({int(row["step"]) for row in r.rows} for r in group))
+        studies.append(Study(name, group, sorted(common), differs))
+    return sorted(studies, key=lambda st: st.name)
 
 
 def by_mode(runs: list[RunData]) -> dict[str, list[RunData]]:
@@ -73,17 +132,17 @@ def by_mode(runs: list[RunData]) -> dict[str, list[RunData]]:
     return {m: groups[m] for m in order}
 
 
-def curves_figure(groups: dict[str, list[RunData]], path: Path) -> None:
-    """Loss, D_topo, D_metric against step: mean ± std over runs per mode, faint per-run lines."""
+def curves_figure(study: Study, path: Path) -> None:
+    """Loss, D_topo, D_metric against step: mean ± std over runs per mode, faint per-run lines; at
+    the steps every run of the study reached (runs in progress are cut there)."""
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    steps = np.array(study.steps)
     for ax, (key, label) in zip(axes, METRICS, strict=True):
-        for mode, runs in groups.items():
+        for mode, runs in by_mode(study.runs).items():
             colour = MODE_COLOURS.get(mode, "tab:gray")
-            length = min(len(r.rows) for r in runs)  # runs still in progress are cut to the shortest
-            steps = runs[0].column("step")[:length]
-            values = np.stack([r.column(key)[:length] for r in runs])
+            values = np.stack([r.values(key, study.steps) for r in runs])
             for v in values:
                 ax.plot(steps, v, color=colour, alpha=0.15, linewidth=0.7)
             mean, std = values.mean(0), values.std(0)
@@ -102,15 +161,14 @@ def curves_figure(groups: dict[str, list[RunData]], path: Path) -> None:
     plt.close(fig)
 
 
-def projection_figure(run: RunData, path: Path) -> None:
+def projection_figure(run: RunData, step: int, path: Path) -> None:
     """Normalised regular motors, h, p with ĥ (and lines), predicted vs true s_t1 (first 3 dims)."""
     import matplotlib.pyplot as plt
 
-    step = int(run.rows[-1]["step"])
     h, p = run.run.embeddings(step)
     h, p = h.astype(np.float64), p.astype(np.float64)
     h_hat = affine_projection(h, p)
-    last = run.rows[-1]
+    last = next(r for r in run.rows if int(r["step"]) == step)
     fig = plt.figure(figsize=(20, 5))
     ax = fig.add_subplot(1, 4, 1, projection="3d")
     try:
@@ -156,13 +214,14 @@ def first_three(h: np.ndarray) -> tuple[np.ndarray, str]:
     return centred @ vt[:3].T, f" (PCA to 3 of {h.shape[1]} dims, {kept:.0%} of variance)"
 
 
-def final_table(groups: dict[str, list[RunData]]) -> list[dict[str, Any]]:
+def final_table(study: Study) -> list[dict[str, Any]]:
+    """Mean ± std per mode at the last step every run of the study reached."""
     table = []
-    for mode, runs in groups.items():
-        row: dict[str, Any] = {"setup": runs[0].setup, "n_h": runs[0].n_h, "mode": mode, "runs": len(runs)}
-        row["step"] = int(min(r.rows[-1]["step"] for r in runs))
+    for mode, runs in by_mode(study.runs).items():
+        row: dict[str, Any] = {"study": study.name, "setup": runs[0].setup, "n_h": runs[0].n_h, "mode": mode}
+        row |= {"runs": len(runs), "step": study.final_step}
         for key, _ in METRICS:
-            values = np.array([r.rows[-1][key] for r in runs])
+            values = np.array([r.values(key, [study.final_step])[0] for r in runs])
             row[f"{key}_mean"], row[f"{key}_std"] = float(values.mean()), float(values.std())
         table.append(row)
     return table
@@ -173,45 +232,64 @@ def _mean_std(mean: float, std: float, runs: int) -> str:
     return f"{mean:.3g}" if runs == 1 else f"{mean:.3g} ± {std:.2g}"
 
 
-def write_tables(runs: list[RunData], table: list[dict[str, Any]], out: Path) -> None:
+def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path) -> None:
     with open(out / "final.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(table[0]))
         writer.writeheader()
         writer.writerows(table)
     with open(out / "runs.csv", "w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow(["run", "setup", "n_h", "mode", "step", "eval_loss", "d_topo", "d_metric"])
-        for r in runs:
-            last = r.rows[-1]
-            writer.writerow(
-                [r.name, r.setup, r.n_h, r.mode, last["step"], last["eval_loss"], last["d_topo"], last["d_metric"]]
-            )
-    lines = ["| setup | N_h | mode | runs | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|---|---|"]
+        writer.writerow(["run", "study", "setup", "n_h", "mode", "step", "eval_loss", "d_topo", "d_metric"])
+        for study in studies:
+            for r in study.runs:
+                at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
+                writer.writerow([r.name, study.name, r.setup, r.n_h, r.mode, study.final_step, *at])
+    lines = [
+        "| study | setup | N_h | mode | runs | step | loss | D_topo | D_metric |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for row in table:
         cells = [_mean_std(row[f"{k}_mean"], row[f"{k}_std"], row["runs"]) for k, _ in METRICS]
-        head = f"| {row['setup']} | {row['n_h']} | {row['mode']} | {row['runs']} | {row['step']} | "
+        head = f"| {row['study']} | {row['setup']} | {row['n_h']} | {row['mode']} | {row['runs']} | {row['step']} | "
         lines.append(head + " | ".join(cells) + " |")
     (out / "final.md").write_text("\n".join(lines) + "\n")
 
 
-def report(paths: list[Path], out: Path) -> list[Path]:
+def notices(studies: list[Study]) -> list[str]:
+    """What the reader must know about how the runs were grouped and cut, one line each."""
+    lines = []
+    if len(studies) > 1:
+        fields = sorted({k for st in studies for k in st.differs})
+        lines.append(
+            f"report: {len(studies)} studies, kept apart (never averaged together): they differ in {', '.join(fields)}"
+        )
+    for st in studies:
+        ahead = [r.name for r in st.runs if int(r.rows[-1]["step"]) > st.final_step]
+        if ahead:
+            lines.append(
+                f"report: {st.name}: shown up to step {st.final_step}, the last every run reached "
+                f"({len(ahead)} run(s) are further along)"
+            )
+    return lines
+
+
+def report(paths: list[Path], out: Path) -> tuple[list[Path], list[str]]:
+    """The figures and tables of the runs, and the notices to show beside them."""
     import matplotlib
 
     matplotlib.use("Agg")
-    runs = load_runs(paths)
-    studies = by_study(runs)
+    studies = by_study(load_runs(paths))
     out.mkdir(parents=True, exist_ok=True)
     written, table = [], []
-    for study, members in studies.items():
+    for study in studies:
         # one study keeps the plain names; several are told apart by a prefix and never averaged together
-        prefix = "" if len(studies) == 1 else f"{study}_"
-        groups = by_mode(members)
-        curves_figure(groups, out / f"{prefix}curves.png")
+        prefix = "" if len(studies) == 1 else f"{study.name}_"
+        curves_figure(study, out / f"{prefix}curves.png")
         written.append(out / f"{prefix}curves.png")
-        for mode, group in groups.items():
+        for mode, group in by_mode(study.runs).items():
             path = out / f"{prefix}projection_{mode}.png"
-            projection_figure(group[0], path)
+            projection_figure(group[0], study.final_step, path)
             written.append(path)
-        table += final_table(groups)
-    write_tables(runs, table, out)
-    return [*written, out / "final.csv", out / "final.md", out / "runs.csv"]
+        table += final_table(study)
+    write_tables(studies, table, out)
+    return [*written, out / "final.csv", out / "final.md", out / "runs.csv"], notices(studies)
