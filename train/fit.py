@@ -20,9 +20,17 @@ from lake.dataset import Dataset
 from train.config import TrainConfig, check_resources
 from train.distributed import SINGLE, Ranks, per_rank_batch, ranks_agree
 from train.evaluation import N_PREDICTIONS, EvalData
-from train.loop import TrainingFailed, open_member, recorded_outcome, resolve_device, resume_members, train
+from train.loop import (
+    TrainingFailed,
+    open_member,
+    recorded_outcome,
+    resolve_device,
+    resume_members,
+    run_dataset,
+    train,
+)
 from train.model import SensorimotorNet, prediction_loss
-from train.run_dir import RunDir
+from train.run_dir import CHECKPOINT, RunDir
 from train.terms import resumed
 
 __all__ = ["FitPlan", "SingleLearner", "TrainingFailed", "build", "fit", "plan_fit", "resolve_device"]
@@ -68,7 +76,9 @@ def plan_fit(
         run = RunDir.open(resume)
         steps = template.steps if "--steps" in given else None
         cfg, change = resumed(run.config, str(run.path), steps, world)
-        check_resources(cfg, Dataset(cfg.dataset).manifest)
+        manifest = run_dataset(cfg, str(run.path)).manifest
+        check_resources(cfg, manifest)
+        check_checkpoint(run.load_checkpoint(), cfg, manifest, f"{run.path}/{CHECKPOINT}")
         return FitPlan(cfg, str(run.path), resume=True, change=change)
     if dataset is None:
         raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
@@ -89,6 +99,29 @@ def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):
     # fused Adam: one kernel for all parameters, 1.5-2x faster steps than the per-tensor loop on a CPU
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
     return model, optimizer
+
+
+def check_checkpoint(checkpoint: dict[str, Any], cfg: TrainConfig, manifest, where: str) -> int:
+    """The step of a checkpoint that belongs to this run's network, or one line saying why not (a
+    checkpoint of another run, another N_h or other layers) before anything is loaded into a model."""
+    n_sensor = int(np.prod(manifest.sensor_shape))
+    with torch.device("meta"):  # shapes only: nothing is allocated
+        expected = SensorimotorNet(manifest.n_motor, n_sensor, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers)
+    shapes = {name: tuple(t.shape) for name, t in expected.state_dict().items()}
+    state = checkpoint.get("model") if isinstance(checkpoint, dict) else None
+    if not isinstance(state, dict) or not isinstance(checkpoint.get("step"), int):
+        raise SmspaceError(f"{where} is not a smspace checkpoint (no model or step); it was not loaded")
+    got = {name: tuple(t.shape) for name, t in state.items() if isinstance(t, torch.Tensor)}
+    if got != shapes:
+        name = next((n for n in shapes if got.get(n) != shapes[n]), None) or next(n for n in got if n not in shapes)
+        raise SmspaceError(
+            f"{where} holds another network than this run's config ({name}: {got.get(name)} in the checkpoint, "
+            f"{shapes.get(name)} for N_h {cfg.n_h} and layers {cfg.encoder_layers}/{cfg.predictor_layers}); "
+            "it belongs to another run and was not loaded"
+        )
+    if not 0 <= checkpoint["step"] <= cfg.steps:
+        raise SmspaceError(f"{where} is at step {checkpoint['step']}, outside this run's 0..{cfg.steps}")
+    return checkpoint["step"]
 
 
 class SingleLearner:

@@ -77,19 +77,24 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Ranks = SINGLE) -> Member:
+def run_dataset(cfg: TrainConfig, where: str) -> Dataset:
+    """The dataset a run trains on, refused if it is not the one the run recorded (regenerated)."""
     ds = Dataset(cfg.dataset)
     recorded = (cfg.dataset_config_hash, cfg.dataset_shards_sha256)
     found = (ds.manifest.config_hash, ds.manifest.shards_digest)
     for name, was, now in zip(("config hash", "shard hashes"), recorded, found, strict=True):
         if was and was != now:  # empty: a config written by hand or by smspace 0.1
             raise SmspaceError(
-                f"dataset {ds.url} is not the one {run.path} was trained on (its {name} changed); "
-                "train a new run instead"
+                f"dataset {ds.url} is not the one {where} was trained on (its {name} changed); train a new run instead"
             )
     for size, shard in zip(ds.shard_sizes(), ds.manifest.shards, strict=True):
         if size != shard["bytes"]:
             raise SmspaceError(f"shard {ds.url}/{shard['file']} is not the size its manifest records")
+    return ds
+
+
+def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Ranks = SINGLE) -> Member:
+    ds = run_dataset(cfg, str(run.path))
     batch = per_rank_batch(cfg.batch_size, ranks)
     stream = TransitionStream(
         ds, batch, seed=cfg.seed, window=cfg.shuffle_window, rank=ranks.rank, world_size=ranks.world
@@ -99,9 +104,12 @@ def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Rank
 
 def resume_members(learner: Learner, members: list[Member], device: torch.device, ranks: Ranks = SINGLE) -> int:
     """Load every run's checkpoint; all must be at the same step, which is returned."""
+    from train.fit import check_checkpoint  # the lone model's shapes: what every checkpoint holds
+
     steps = set()
     for r, m in enumerate(members):
         ckpt = m.run.load_checkpoint(str(device))
+        check_checkpoint(ckpt, m.cfg, m.dataset.manifest, f"{m.run.path}/checkpoint.pt")
         learner.load(r, ckpt)
         m.stream.load_state_dict(ckpt["stream"])
         step = int(ckpt["step"])
