@@ -10,8 +10,11 @@ import contextlib
 import multiprocessing
 import os
 import signal
+import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+from pathlib import Path
 from typing import Any
 
 from common.cli import die_with_parent
@@ -47,20 +50,35 @@ def import_ray(flag: str = "--executor ray"):
     return ray
 
 
+LOCAL_ONLY = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"  # "0": Ray takes 127.0.0.1 as the node's address
+
+
 @contextlib.contextmanager
 def ray_session(cpus: int) -> Iterator[Any]:
-    """Ray, joined at $RAY_ADDRESS or started here on `cpus` CPUs, bound to 127.0.0.1 without a
-    dashboard; a Ray started here is stopped on the way out (with all its processes)."""
+    """Ray, joined at $RAY_ADDRESS or started here on `cpus` CPUs without a dashboard; a Ray started
+    here is a new one (never another local Ray found running), every one of its processes listens
+    on 127.0.0.1 only, and it is stopped on the way out (with all its processes).
+
+    Ray 2.60 replaces an explicit node address of 127.0.0.1 by the machine's outward address unless
+    it is told that this Ray is local-only; its gcs_server, raylet and workers then bind 127.0.0.1
+    instead of every interface (and the runtime-env agent 127.0.0.1 instead of the outward address)."""
+    address = os.environ.get("RAY_ADDRESS")
+    if not address:
+        os.environ[LOCAL_ONLY] = "0"  # read when Ray is imported, and by the Ray processes started here
     ray = import_ray()
     if ray.is_initialized():
         yield ray
         return
-    address = os.environ.get("RAY_ADDRESS")
+    handler = signal.getsignal(signal.SIGTERM)
     try:
         if address:
             ray.init(address=address, log_to_driver=False, logging_level="ERROR")
         else:
+            from ray._private import ray_constants
+
+            ray_constants.ENABLE_RAY_CLUSTER = False  # in case Ray was imported before the variable was set
             ray.init(
+                address="local",
                 num_cpus=cpus,
                 include_dashboard=False,
                 _node_ip_address="127.0.0.1",
@@ -69,10 +87,44 @@ def ray_session(cpus: int) -> Iterator[Any]:
             )
     except Exception as e:
         raise SmspaceError(f"cannot start or join Ray ({address or 'local'}): {_line(e)}") from None
+    finally:
+        signal.signal(signal.SIGTERM, handler)  # ray.init installs its own: SIGTERM must stop us as Ctrl-C does
+    guard = None if address else _guard_local_ray()
     try:
         yield ray
     finally:
         ray.shutdown()
+        if guard is not None:
+            _release(guard)
+
+
+def _guard_local_ray() -> subprocess.Popen | None:
+    """A guardian (common/ray_guard.py) that stops this local Ray's processes if we are killed."""
+    node = getattr(getattr(getattr(import_ray(), "_private", None), "worker", None), "_global_node", None)
+    pids = [info.process.pid for infos in getattr(node, "all_processes", {}).values() for info in infos]
+    if not pids:  # another Ray than the one this was written for: Ray's own cleanup is all there is
+        return None
+    guard = subprocess.Popen(
+        [sys.executable, "-m", "common.ray_guard"],
+        stdin=subprocess.PIPE,
+        start_new_session=True,  # neither Ctrl-C nor our process group's signals reach it
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    guard.stdin.write("".join(f"{pid}\n" for pid in pids).encode())
+    guard.stdin.flush()
+    return guard
+
+
+def _release(guard: subprocess.Popen) -> None:
+    """Ray was stopped as it should be: the guardian leaves without touching anything."""
+    with contextlib.suppress(OSError):
+        guard.stdin.write(b"done\n")
+        guard.stdin.close()
+    try:
+        guard.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        guard.kill()
+        guard.wait()
 
 
 def in_ray(ray, remote_fn, tasks: list[tuple]) -> Iterator[tuple[tuple, Any]]:

@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
+import time
 
+import psutil
 import pytest
 
 from tests.conftest import BIN, smgen
@@ -139,21 +142,31 @@ def test_ray_runs_the_arm_preflight_on_a_worker_not_the_driver(ray_cluster, tmp_
 
 @pytest.mark.slow
 def test_ray_executor_without_a_cluster_starts_and_stops_a_local_ray(grid_lake, tmp_path):
-    """No $RAY_ADDRESS: smgen starts Ray on this machine (127.0.0.1) and stops every process it started."""
+    """No $RAY_ADDRESS: smgen starts a Ray of its own on this machine, every process of which
+    (gcs_server, raylet, agents, workers: found by the mark in their environment, wherever they sit
+    in the process tree) listens on 127.0.0.1 only, and stops every process it started."""
     pytest.importorskip("ray")
     marker = f"{os.getpid()}-{tmp_path.name}"
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER")}
     env |= {"SMSPACE_TEST_MARK": marker, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
     lake = tmp_path / "lake"
     ray_args = ["--executor", "ray", "--workers", "2", "--lake", str(lake)]
-    proc = subprocess.run(
+    proc = subprocess.Popen(
         [str(BIN / "smgen"), "generate", *GRID, "--mode", "MME", *ray_args],
-        capture_output=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
         env={k: str(v) for k, v in env.items()},
-        timeout=600,
     )
-    assert proc.returncode == 0, proc.stderr
+    seen, names = 0, set()
+    while proc.poll() is None:
+        marked = set(processes_marked(marker))
+        names |= {psutil.Process(p).name() for p in marked if psutil.pid_exists(p)}
+        seen = max(seen, assert_loopback_only(marked))
+        time.sleep(0.1)
+    _, stderr = proc.communicate(timeout=600)
+    assert proc.returncode == 0, stderr
+    assert seen >= 4 and {"gcs_server", "raylet"} <= names, (seen, names)  # Ray's servers were watched
     assert dataset_files(local_files(lake), "grid-seed3-MME") == dataset_files(local_files(grid_lake), "grid-seed3-MME")
     assert processes_marked(marker) == []
 
@@ -174,3 +187,61 @@ def test_a_sweep_on_the_two_node_cluster_trains_every_run(ray_cluster, tmp_path)
     finished = [json.loads(p.read_text())["state"] for p in sorted((tmp_path / "runs").glob("*/status.json"))]
     assert finished == ["finished"] * 3
     assert assert_loopback_only(tree(os.getpid())) >= 2
+
+
+def _ray_generation(tmp_path) -> tuple[subprocess.Popen, set[int]]:
+    """A long `smgen generate --executor ray` and every process of its tree once Ray's agents run."""
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER")}
+    env |= {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    args = ["generate", "--setup", "grid", "--mode", "all", "--worlds", "30", "--transitions", "200000"]
+    proc = subprocess.Popen(
+        [str(BIN / "smgen"), *args, "--executor", "ray", "--workers", "2", "--lake", str(tmp_path / "lake")],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    seen: set[int] = set()
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        seen |= tree(proc.pid)
+        names = {psutil.Process(p).name() for p in seen if psutil.pid_exists(p)}
+        if {"ray::DashboardAgent", "ray::RuntimeEnvAgent"} <= names and list((tmp_path / "lake").glob("*/shard-*")):
+            return proc, seen
+        time.sleep(0.2)
+    proc.kill()
+    raise AssertionError(f"Ray's agents never showed up: {proc.communicate()}")
+
+
+def _gone_within(pids: set[int], seconds: float) -> list[str]:
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        alive = [p for p in pids if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+        if not alive:
+            return []
+        time.sleep(0.2)
+    return [psutil.Process(p).name() for p in alive if psutil.pid_exists(p)]
+
+
+@pytest.mark.slow
+def test_sigterm_stops_a_ray_command_as_ctrl_c_does(tmp_path):
+    """Ray's own SIGTERM handler printed a stack dump and exited 1; now "interrupted" and 130, and
+    every process of the command, Ray's agents included, is gone within seconds."""
+    pytest.importorskip("ray")
+    proc, pids = _ray_generation(tmp_path)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1].startswith("interrupted; the parts already stored are kept"), stderr
+    assert _gone_within(pids, 10) == []
+
+
+@pytest.mark.slow
+def test_a_killed_ray_driver_leaves_no_ray_process_behind(tmp_path):
+    """kill -9 of the command: Ray's agents used to live on for 60-70 s."""
+    pytest.importorskip("ray")
+    proc, pids = _ray_generation(tmp_path)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert _gone_within(pids, 10) == []
