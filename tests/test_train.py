@@ -347,3 +347,25 @@ def test_ctrl_c_of_a_sweep_says_the_same_command_resumes_it(tmp_path):
         "the same command resumes them"
     )
     assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"interrupted"}
+
+
+def test_a_run_resumed_from_its_step_0_checkpoint_records_step_0_once(tmp_path, monkeypatch):
+    from train.config import TrainConfig
+    from train.fit import SingleLearner
+    from train.fit import fit as run_fit
+
+    ds = SAMPLES / "grid-seed0-MM"
+    cfg = TrainConfig(dataset=str(ds), dataset_id=ds.name, steps=200, eval_every=100, seed=3)
+    run = RunDir.create(tmp_path / "run", cfg, False)
+
+    def stop(*args):
+        raise KeyboardInterrupt  # after the evaluation and checkpoint of step 0, before step 1
+
+    with monkeypatch.context() as patched:
+        patched.setattr(SingleLearner, "train_step", stop)
+        with pytest.raises(KeyboardInterrupt):
+            run_fit(cfg, run)
+    assert run.checkpoint_step() == 0 and [r["step"] for r in run.metrics()] == [0]
+    result = smtrain("fit", "--resume", run.path)
+    assert result.exit_code == 0, result.output
+    assert [r["step"] for r in RunDir.open(run.path).metrics()] == [0, 100, 200]

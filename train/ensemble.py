@@ -178,9 +178,6 @@ def train_ensemble(runs: list[RunDir], resume: bool = False, threads: int = 1, p
         run.claim()  # before anything is recorded: a run another process trains is left untouched
     with recorded_outcome(runs):
         members = [open_member(run, run.config, device) for run in runs]
-        for m in members:
-            if not m.cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
-                m.cfg = m.cfg.for_dataset(m.dataset.store, m.dataset.manifest)
         _check_compatible([m.cfg for m in members])
         manifests = [m.dataset.manifest for m in members]
         n_motor, shape = manifests[0].n_motor, manifests[0].sensor_shape

@@ -76,7 +76,9 @@ def plan_fit(
         run = RunDir.open(resume)
         steps = template.steps if "--steps" in given else None
         cfg, change = resumed(run.config, str(run.path), steps, world)
-        manifest = run_dataset(cfg, str(run.path)).manifest
+        ds = run_dataset(cfg, str(run.path))
+        manifest = ds.manifest
+        cfg = cfg if cfg.encoder_layers else cfg.for_dataset(ds.store, manifest)  # a config built by hand
         check_resources(cfg, manifest)
         check_checkpoint(run.load_checkpoint(), cfg, manifest, f"{run.path}/{CHECKPOINT}")
         return FitPlan(cfg, str(run.path), resume=True, change=change)
@@ -183,8 +185,7 @@ def _fit_claimed(cfg: TrainConfig, run: RunDir, resume: bool, ranks: Ranks, devi
     with recorded_outcome([run] if ranks.primary else []):
         member = open_member(run, cfg, device, ranks)
         manifest = member.dataset.manifest
-        if not cfg.encoder_layers:  # a config built by hand: the setup's paper encoder
-            cfg = member.cfg = cfg.for_dataset(member.dataset.store, manifest)
+        cfg = member.cfg
         model, optimizer = build(cfg, manifest.n_motor, int(np.prod(manifest.sensor_shape)), device)
         learner = SingleLearner(model, optimizer, member.data, ranks)
         step = resume_members(learner, [member], device, ranks) if resume else 0

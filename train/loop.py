@@ -95,6 +95,10 @@ def run_dataset(cfg: TrainConfig, where: str) -> Dataset:
 
 def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Ranks = SINGLE) -> Member:
     ds = run_dataset(cfg, str(run.path))
+    if not cfg.encoder_layers:  # a config built by hand: resolved (the setup's encoder), and recorded so
+        cfg = cfg.for_dataset(ds.store, ds.manifest)
+        if ranks.primary:
+            run.write_config(cfg)
     batch = per_rank_batch(cfg.batch_size, ranks)
     stream = TransitionStream(
         ds, batch, seed=cfg.seed, window=cfg.shuffle_window, rank=ranks.rank, world_size=ranks.world
@@ -164,7 +168,7 @@ def train(
             f"loss became NaN or inf at step {at} in {bad}; stopped, the checkpoint of step {last} is kept"
         )
 
-    if step == 0:
+    if step == 0 and not any(m.rows for m in members):  # resumed from a step-0 checkpoint: recorded already
         record(0, np.full(count, math.nan), 0.0)
     batches = [iter(DataLoader(m.stream, batch_size=None, num_workers=m.cfg.loader_workers)) for m in members]
     check_each_step = device.type == "cpu"  # .item() is free on a CPU, a sync on a GPU
