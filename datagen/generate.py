@@ -23,11 +23,19 @@ from datagen.executors import ExecutorOptions, open_executor
 from datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
 from datagen.setups import get_setup
 from lake.catalog import check_lake, rebuild_catalog
-from lake.manifest import GENERATION, MANIFEST, MAX_SHARD_SIZE, REGULAR_FILE, GenConfig, Manifest, load_manifest
+from lake.manifest import (
+    GENERATION,
+    MANIFEST,
+    MAX_SHARD_SIZE,
+    MAX_TRANSITIONS,
+    REGULAR_FILE,
+    GenConfig,
+    Manifest,
+    load_manifest,
+)
 from lake.store import Store
 
 LOCKS = ".locks"  # lake/.locks/<dataset id>.lock: held while that dataset is generated (local lakes)
-MAX_TRANSITIONS = 2**40  # a dataset's transition indices are int64 log times; far beyond any disk
 
 
 @dataclass(frozen=True)
@@ -264,11 +272,11 @@ def finalize(lake: Store | str, folders: list[Store]) -> list[tuple[Manifest, bo
             continue
         try:
             raw = json.loads(folder.read_bytes(GENERATION))
-            cfg = GenConfig(**raw["config"])
+            cfg = GenConfig.from_record(raw["config"], f"{folder}/{GENERATION}")
         except FileNotFoundError:
             raise SmspaceError(f"{folder} has no generation to finalize (no {GENERATION})") from None
         except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError) as e:
-            raise SmspaceError(f"{folder}/{GENERATION} is unreadable ({e})") from None
+            raise SmspaceError(f"{folder}/{GENERATION} is unreadable ({type(e).__name__}: {e})") from None
         records = {}
         for part in parts_of(cfg):
             record = verify_part(cfg, folder, part)

@@ -22,6 +22,13 @@ BATCH_SIZE = 1024
 SEED_MAX = 2**63 - 1  # a world seed is an int64 in the catalog
 MAX_WORLDS = 100_000  # worlds in one command: the plan of every dataset is held in memory
 MAX_SHARD_SIZE = 1 << 18  # transitions per shard: a worker holds one shard in memory (arm: ~0.5 GB)
+# Bounds on every number a manifest or generation.json holds, so that a hostile or mistyped record is
+# named in one line instead of overflowing a sum or sizing an allocation.
+MAX_TRANSITIONS = 2**40  # a dataset's transition indices are int64 log times; far beyond any disk
+MAX_SHARDS = 1 << 20
+MAX_BATCH_SIZE = 1 << 16  # transitions per batch message
+MAX_FILE_BYTES = 1 << 40  # one file; so that sums over a lake stay far inside int64
+MAX_REGULAR = 1 << 26  # regular-sampling states (15625 for six motors)
 SHARD_FILE = re.compile(r"shard-\d{5}\.mcap")
 
 
@@ -50,6 +57,37 @@ class GenConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def problem(self) -> str | None:
+        """What makes this config impossible to hold or to trust, or None."""
+        ints = ("world_seed", "transitions", "shard_size", "batch_size")
+        if not all(isinstance(getattr(self, k), int) and not isinstance(getattr(self, k), bool) for k in ints):
+            return "config counts are not integers"
+        if not (isinstance(self.setup, str) and isinstance(self.mode, str) and 0 <= self.world_seed <= SEED_MAX):
+            return "config names no valid setup, mode or seed"
+        bounds = (
+            ("transitions", 1, MAX_TRANSITIONS),
+            ("shard_size", 1, MAX_SHARD_SIZE),
+            ("batch_size", 1, MAX_BATCH_SIZE),
+        )
+        for name, low, high in bounds:
+            if not low <= getattr(self, name) <= high:
+                return f"config {name} {getattr(self, name)} is outside {low}..{high}"
+        if self.n_shards > MAX_SHARDS:
+            return f"config makes {self.n_shards} shards, more than {MAX_SHARDS}"
+        return None
+
+    @classmethod
+    def from_record(cls, raw: Any, where: str) -> GenConfig:
+        """A config read from a manifest or generation.json: every field checked, one line if not."""
+        try:
+            cfg = cls(**raw)
+        except TypeError:
+            raise DatasetCorrupt(f"{where}: config has other fields than a generation config") from None
+        problem = cfg.problem()
+        if problem:
+            raise DatasetCorrupt(f"{where}: {problem}")
+        return cfg
 
     @property
     def config_hash(self) -> str:

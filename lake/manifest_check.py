@@ -7,10 +7,11 @@ import math
 import re
 from typing import Any
 
-from lake.manifest import REGULAR_FILE, SEED_MAX, SHARD_FILE, GenConfig, shard_name
+from lake.manifest import MAX_FILE_BYTES, MAX_REGULAR, REGULAR_FILE, SEED_MAX, SHARD_FILE, GenConfig, shard_name
 from lake.transitions import MODES
 
 DTYPES = ("float32", "uint8")
+MAX_SENSOR = 1 << 24  # sensor components (768 for a 16x16 RGB camera)
 
 
 def _int(v: Any, low: int = 0, high: int = SEED_MAX) -> bool:
@@ -32,7 +33,11 @@ def _file_entry(entry: Any, names: re.Pattern | str) -> str | None:
     ok = isinstance(name, str) and (names.fullmatch(name) if not isinstance(names, str) else name == names)
     if not ok:
         return f"file entry {name!r} is not a file name this format uses"
-    if not _int(entry.get("bytes")) or not isinstance(entry.get("sha256"), str) or len(entry["sha256"]) != 64:
+    if (
+        not _int(entry.get("bytes"), 0, MAX_FILE_BYTES)
+        or not isinstance(entry.get("sha256"), str)
+        or len(entry["sha256"]) != 64
+    ):
         return f"{name}: bytes or sha256 missing or malformed"
     return None
 
@@ -51,10 +56,11 @@ def _check_identity(raw: dict[str, Any]) -> str | None:
         gen = GenConfig(**config)
     except TypeError:
         return "config has other fields than a generation config"
-    if not (isinstance(gen.setup, str) and gen.mode in MODES and _int(gen.world_seed)):
+    problem = gen.problem()
+    if problem:
+        return problem
+    if gen.mode not in MODES:
         return "config names no valid setup, mode or seed"
-    if not (_int(gen.transitions, 1) and _int(gen.shard_size, 1) and _int(gen.batch_size, 1)):
-        return "config counts are not positive integers"
     if raw.get("config_hash") != gen.config_hash:
         return "config_hash does not match config"
     expected = {"dataset_id": gen.dataset_id, "setup": gen.setup, "mode": gen.mode, "world_seed": gen.world_seed}
@@ -71,6 +77,8 @@ def _check_shapes(raw: dict[str, Any]) -> str | None:
     shape = raw.get("sensor_shape")
     if not (isinstance(shape, list) and 1 <= len(shape) <= 3 and all(_int(d, 1, 1 << 16) for d in shape)):
         return "sensor_shape is not a list of positive integers"
+    if math.prod(shape) > MAX_SENSOR:
+        return f"sensor_shape {shape} has more than {MAX_SENSOR} components"
     if raw.get("sensor_dtype") not in DTYPES:
         return f"sensor_dtype {raw.get('sensor_dtype')!r} is not one of {', '.join(DTYPES)}"
     bound = raw.get("shift_bound")
@@ -97,8 +105,8 @@ def _check_files(raw: dict[str, Any]) -> str | None:
     problem = _file_entry(reg, REGULAR_FILE)
     if problem:
         return problem
-    if not _int(reg.get("count"), 1):
-        return "regular_sampling count is not a positive integer"
+    if not _int(reg.get("count"), 1, MAX_REGULAR):
+        return f"regular_sampling count is not an integer in 1..{MAX_REGULAR}"
     return None
 
 

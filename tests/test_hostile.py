@@ -215,6 +215,10 @@ def _edit_manifest(folder: Path, edit) -> None:
         (lambda m: m.update(shards={"file": "x"}), "shards"),
         (lambda m: m.update(n_motor=[3]), "n_motor"),
         (lambda m: m.pop("normalisation"), "normalisation"),
+        (lambda m: [shard.update(bytes=2**62) for shard in m["shards"]], "bytes"),  # their sum passes int64
+        (lambda m: m["config"].update(transitions=2**40, shard_size=2**40, batch_size=1), "shard_size"),
+        (lambda m: m["regular_sampling"].update(count=2**40), "regular_sampling count"),
+        (lambda m: m.update(sensor_shape=[65536, 65536, 3]), "sensor_shape"),
     ],
 )
 def test_hostile_manifests_are_named_in_one_line_everywhere(samples_copy, tmp_path, edit, needle):
@@ -528,3 +532,32 @@ def test_world_counts_and_shard_sizes_are_bounded(tmp_path):
     result = smtrain("sweep", "--setup", "grid", "--worlds", 10**9, "--lake", lake, "--out", tmp_path / "runs")
     assert result.exit_code == 2 and "--worlds" in result.output
     assert not lake.exists() or not any(lake.iterdir())
+
+
+def test_a_manifest_with_huge_sizes_leaves_the_lake_usable(samples_copy):
+    """Two shards of 2**62 bytes: their sum overflowed the catalog (OverflowError in every `ls` and
+    every later `generate` into that lake)."""
+    _edit_manifest(samples_copy / "grid-seed0-MEM", lambda m: [s.update(bytes=2**62) for s in m["shards"]])
+    (samples_copy / "catalog.parquet").unlink()
+    listed = smgen("ls", "--lake", samples_copy, "--json")
+    assert listed.exit_code == 0, listed.output
+    assert len(listed.output.splitlines()) == 5  # the five sound datasets; the broken one is left out
+    made = smgen(
+        "generate", "--setup", "grid", "--mode", "MM", "--seed", 4, "--transitions", 1000, "--lake", samples_copy
+    )
+    assert made.exit_code == 0, made.output
+
+
+def test_finalize_of_a_hostile_generation_record_is_one_line(tmp_path):
+    import json
+
+    lake = tmp_path / "lake"
+    args = ["generate", "--setup", "grid", "--mode", "MM", "--transitions", 3000, "--shard-size", 1000]
+    assert smgen(*args, "--rank", 0, "--world-size", 2, "--lake", lake).exit_code == 0
+    record = lake / "grid-seed0-MM" / "generation.json"
+    raw = json.loads(record.read_text())
+    raw["config"].update(transitions=2**40, shard_size=2**18, batch_size=1)  # 2**22 shards
+    record.write_text(json.dumps(raw))
+    result = smgen("finalize", "grid-seed0-MM", "--lake", lake)
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1 and "shards, more than" in lines[0], result.output

@@ -20,6 +20,7 @@ from lake.store import Store, open_store
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
 MAX_LAYERS = 32
+UNIT_BYTES = 256  # the loader's record of one batch unit (a small Python object and its list slot)
 
 
 def flag(
@@ -169,6 +170,7 @@ def check_resources(cfg: TrainConfig, manifest, runs: int = 1) -> None:
             "loader worker(s); use fewer --loader-workers"
         )
     needed = memory_needed(cfg, manifest.n_motor, n_sensor, manifest.regular_sampling["count"], runs)
+    needed += units * UNIT_BYTES * consumers  # every reader holds the table of units
     free = available_memory()
     if needed > free:
         raise SmspaceError(
