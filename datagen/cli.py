@@ -103,6 +103,7 @@ def generate(
             executor=executor,
             share=share,
             options=options,
+            notify=lambda line: click.echo(line, err=True),
         )
     if not share.whole:
         ids = " ".join(f"{setup.name}-seed{s}-{m}" for s in seeds for m in modes)

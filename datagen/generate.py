@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import json
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +23,7 @@ from datagen.executors import ExecutorOptions, open_executor
 from datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
 from datagen.setups import get_setup
 from lake.catalog import check_lake, rebuild_catalog
+from lake.integrity import file_problem
 from lake.manifest import (
     GENERATION,
     MANIFEST,
@@ -84,19 +85,21 @@ def _clear_dataset(folder: Store) -> None:
     folder.remove_partials()
 
 
-def _files_as_recorded(folder: Store) -> bool:
-    """Cheap completeness check of a finished dataset: every file present with its recorded size."""
+def damaged_files(folder: Store) -> list[tuple[str, str]]:
+    """(file, what is wrong) for every file of a finished dataset that is not the recorded one:
+    missing, of another size, or of other bytes (lake/integrity.py)."""
     manifest = load_manifest(folder)
-    for entry in [*manifest.shards, manifest.regular_sampling]:
-        try:
-            if folder.size(entry["file"]) != entry["bytes"]:
-                return False
-        except (FileNotFoundError, SmspaceError):
-            return False
-    return True
+    entries = [*manifest.shards, manifest.regular_sampling]
+    return [(entry["file"], problem) for entry in entries if (problem := file_problem(folder, entry))]
 
 
-def plan_dataset(lake: Store, cfg: GenConfig, overwrite: bool, share: Share = Share()) -> Plan:
+def plan_dataset(
+    lake: Store,
+    cfg: GenConfig,
+    overwrite: bool,
+    share: Share = Share(),
+    notify: Callable[[str], None] = lambda line: None,
+) -> Plan:
     folder = lake.child(cfg.dataset_id)
     recorded = _recorded_hash(folder)
     if recorded is not None and recorded != cfg.config_hash:
@@ -107,9 +110,15 @@ def plan_dataset(lake: Store, cfg: GenConfig, overwrite: bool, share: Share = Sh
             )
         _clear_dataset(folder)
     elif recorded is not None and folder.exists(MANIFEST):
-        if _files_as_recorded(folder):
+        damaged = damaged_files(folder)
+        if not damaged:
             return Plan(cfg, folder, [], {}, complete=True)
-        # a file went missing or changed size: the dataset is incomplete again until repaired
+        if not share.whole:  # ranks run side by side: none may take a committed dataset apart
+            name, problem = damaged[0]
+            raise SmspaceError(f"{folder}/{name}: {problem}; repair it with a plain `smgen generate` (no --rank)")
+        for name, problem in damaged:  # the dataset is incomplete again until these are redrawn
+            notify(f"{cfg.dataset_id}: {name}: {problem}; drawing it again")
+            folder.delete(name)
         folder.delete(MANIFEST)
     folder.make()
     if share.whole:  # ranks of an array run side by side: none may delete another's temporary files
@@ -150,17 +159,11 @@ def build_manifest(cfg: GenConfig, records: dict[int, PartRecord]) -> Manifest:
         config=cfg.to_dict(),
         config_hash=cfg.config_hash,
         shards=[
-            {
-                "file": r.file,
-                "first_index": cfg.shard_range(r.part)[0],
-                "transitions": r.count,
-                "bytes": r.bytes,
-                "sha256": r.sha256,
-            }
+            {"file": r.file, "first_index": cfg.shard_range(r.part)[0], "transitions": r.count} | r.entry()
             for r in shards
         ],
         normalisation=_merge_stats([r.stats for r in shards]),
-        regular_sampling={"file": REGULAR_FILE, "count": reg.count, "bytes": reg.bytes, "sha256": reg.sha256},
+        regular_sampling={"file": REGULAR_FILE, "count": reg.count} | reg.entry(),
         shift_bound=get_setup(cfg.setup).shift_bound,
     )
 
@@ -226,9 +229,11 @@ def generate(
     executor: str = "local",
     share: Share = Share(),
     options: ExecutorOptions | None = None,
+    notify: Callable[[str], None] = lambda line: None,
 ) -> list[tuple[Manifest | None, bool]]:
-    """Generate (or complete) every (world, mode) dataset; returns (manifest, newly committed) per
-    dataset, the manifest None where a rank of an array left the commit to `finalize`."""
+    """Generate (or complete, or repair) every (world, mode) dataset; returns (manifest, newly
+    committed) per dataset, the manifest None where a rank of an array left the commit to `finalize`.
+    `notify`: where a repair is said."""
     _check_request(transitions, shard_size)
     if overwrite and not share.whole:
         raise SmspaceError("--overwrite cannot be combined with --world-size: ranks would delete each other's parts")
@@ -243,7 +248,7 @@ def generate(
             for cfg in sorted(configs, key=lambda c: c.dataset_id):
                 busy = f"another smgen is generating {cfg.dataset_id}"
                 held.enter_context(lake.lock(f"{LOCKS}/{cfg.dataset_id}.lock", busy, wait=True))
-        plans = [plan_dataset(lake, cfg, overwrite, share) for cfg in configs]
+        plans = [plan_dataset(lake, cfg, overwrite, share, notify) for cfg in configs]
         tasks = [(p.cfg, p.folder, part) for p in plans for part in p.todo]
         by_id = {p.cfg.dataset_id: p for p in plans}
         for (cfg, _, _), record in run_parts(tasks):

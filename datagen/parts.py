@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -33,11 +34,23 @@ class PartRecord:
     file: str
     bytes: int
     sha256: str
+    md5: str  # what object storage reports as the ETag of a single PUT: a cheap witness on reads
     count: int  # transitions (a shard) or samples (the regular file)
     stats: dict[str, list[float]] | None  # m/s min and max (shards only)
     n_motor: int
     sensor_shape: tuple[int, ...] | None  # shards only
     sensor_dtype: str | None
+
+    @classmethod
+    def of(cls, part: int, data: bytes, count: int, n_motor: int, **shard: Any) -> PartRecord:
+        """The record of a part's bytes; `shard`: stats, sensor_shape and sensor_dtype of a shard."""
+        digests = hashlib.sha256(data).hexdigest(), hashlib.md5(data, usedforsecurity=False).hexdigest()
+        fields = {"stats": None, "sensor_shape": None, "sensor_dtype": None} | shard
+        return cls(part, part_file(part), len(data), *digests, count, n_motor=n_motor, **fields)
+
+    def entry(self) -> dict[str, Any]:
+        """What the manifest records of the file."""
+        return {"file": self.file, "bytes": self.bytes, "sha256": self.sha256, "md5": self.md5}
 
 
 def world_for(setup: str, seed: int) -> World:
@@ -73,16 +86,14 @@ def _stats(blocks: list[Block]) -> dict[str, list[float]]:
 
 def _shard_record(part: int, data: bytes, blocks: list[Block], stats: dict[str, list[float]]) -> PartRecord:
     tr = blocks[0].transitions
-    return PartRecord(
+    return PartRecord.of(
         part,
-        shard_name(part),
-        len(data),
-        hashlib.sha256(data).hexdigest(),
+        data,
         sum(len(b.transitions) for b in blocks),
-        stats,
         int(tr.m_t.shape[1]),
-        tuple(int(d) for d in tr.s_t.shape[1:]),
-        tr.s_t.dtype.name,
+        stats=stats,
+        sensor_shape=tuple(int(d) for d in tr.s_t.shape[1:]),
+        sensor_dtype=tr.s_t.dtype.name,
     )
 
 
@@ -93,9 +104,7 @@ def write_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord:
         m, p = world.regular_sampling()
         data = regular_sampling_bytes(m, p)
         folder.put(REGULAR_FILE, data)
-        return PartRecord(
-            part, REGULAR_FILE, len(data), hashlib.sha256(data).hexdigest(), len(m), None, m.shape[1], None, None
-        )
+        return PartRecord.of(part, data, len(m), m.shape[1])
     rng = shard_rng(cfg, part)
     lo, hi = cfg.shard_range(part)
     blocks = [
@@ -128,9 +137,7 @@ def verify_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord | None:
         with ShardReader(folder, name, data=data) as reader:
             if part == REGULAR:
                 m, _ = reader.regular_sampling()
-                return PartRecord(
-                    part, name, len(data), hashlib.sha256(data).hexdigest(), len(m), None, m.shape[1], None, None
-                )
+                return PartRecord.of(part, data, len(m), m.shape[1])
             if reader.metadata().get("config_hash") != cfg.config_hash:
                 return None
             blocks = list(reader.blocks())

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from common.errors import SmspaceError
+from lake.integrity import check_file
 from lake.manifest import GENERATION, MANIFEST, Manifest, load_manifest
 from lake.shards import Block, ShardReader
 from lake.store import LocalStore, Store, is_url, open_store
@@ -60,6 +61,22 @@ class Dataset:
     def __init__(self, where: str | Path | Store):
         self.store: Store = where if isinstance(where, Store) else open_store(where)
         self.manifest: Manifest = load_manifest(self.store)
+        self._intact: set[str] = set()  # files checked against the manifest in this process
+
+    def verify(self) -> Dataset:
+        """Every file checked against the manifest now (one metadata request each on object
+        storage, a hash of each local file), so a damaged dataset is refused before work starts."""
+        for entry in [*self.manifest.shards, self.manifest.regular_sampling]:
+            self._recorded(entry)
+        return self
+
+    def _recorded(self, entry: dict) -> str:
+        """A file of the dataset, once checked to be the one the manifest records (lake/integrity.py)."""
+        name = self._checked(entry["file"])
+        if name not in self._intact:
+            check_file(self.store, entry, self.manifest.dataset_id)
+            self._intact.add(name)
+        return name
 
     @classmethod
     def open(cls, ref: str | Path, lake: str | Path | Store | None = None) -> Dataset:
@@ -91,8 +108,8 @@ class Dataset:
         return [self.file(s["file"]) for s in self.manifest.shards]
 
     def shard_reader(self, i: int) -> ShardReader:
-        """Shard i, opened for ranged reads (locally or on object storage)."""
-        return ShardReader(self.store, self._checked(self.manifest.shards[i]["file"]))
+        """Shard i, checked against its manifest and opened for ranged reads (locally or on object storage)."""
+        return ShardReader(self.store, self._recorded(self.manifest.shards[i]))
 
     def shard_sizes(self) -> list[int]:
         """The stored size of every shard (a missing one is named)."""
@@ -117,5 +134,5 @@ class Dataset:
         return Transitions.concat(parts)[:limit]
 
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
-        with ShardReader(self.store, self._checked(self.manifest.regular_sampling["file"])) as reader:
+        with ShardReader(self.store, self._recorded(self.manifest.regular_sampling)) as reader:
             return reader.regular_sampling()

@@ -33,13 +33,15 @@ def _file_entry(entry: Any, names: re.Pattern | str) -> str | None:
     ok = isinstance(name, str) and (names.fullmatch(name) if not isinstance(names, str) else name == names)
     if not ok:
         return f"file entry {name!r} is not a file name this format uses"
-    if (
-        not _int(entry.get("bytes"), 0, MAX_FILE_BYTES)
-        or not isinstance(entry.get("sha256"), str)
-        or len(entry["sha256"]) != 64
-    ):
+    if not (_int(entry.get("bytes"), 0, MAX_FILE_BYTES) and _hex(entry.get("sha256"), 64)):
         return f"{name}: bytes or sha256 missing or malformed"
+    if "md5" in entry and not _hex(entry["md5"], 32):  # recorded since 0.2; older manifests lack it
+        return f"{name}: md5 malformed"
     return None
+
+
+def _hex(v: Any, length: int) -> bool:
+    return isinstance(v, str) and len(v) == length and all(c in "0123456789abcdef" for c in v)
 
 
 def check_manifest(raw: dict[str, Any]) -> str | None:

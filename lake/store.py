@@ -126,6 +126,11 @@ class Store(ABC):
     def open_stream(self, name: str) -> BinaryIO:
         """A sequential reader with large requests (hashing, whole-file reads)."""
 
+    def etag(self, name: str) -> str | None:
+        """The MD5 of a file written by one PUT, as object storage reports it; None where there is
+        no such witness (local files, multipart uploads)."""
+        return None
+
     def lock(self, name: str, busy: str, wait: bool) -> contextlib.AbstractContextManager:
         """Mutual exclusion between writers where the store has it (local folders); object storage
         relies on the create-only commit instead."""
@@ -286,6 +291,13 @@ class RemoteStore(Store):
     def read_bytes(self, name: str) -> bytes:
         with remote_errors(self.url):
             return self.fs.cat_file(self._key(name))
+
+    def etag(self, name: str) -> str | None:
+        key = self._key(name)
+        with remote_errors(self.url):
+            info = self.fs.info(key, refresh=True)
+        tag = str(info.get("ETag") or info.get("etag") or "").strip('"')
+        return tag if len(tag) == 32 and all(c in "0123456789abcdef" for c in tag) else None  # "…-N": multipart
 
     def read_range(self, name: str, start: int, length: int) -> bytes:
         with remote_errors(self.url):

@@ -336,3 +336,33 @@ def test_a_ray_sweep_writes_its_run_folders_to_s3(s3, tmp_path):
         ("grid-seed4-MEM", "finished", 20),
         ("grid-seed4-MM", "finished", 20),
     ]
+
+
+def test_a_forged_object_on_s3_is_never_trained_on_and_intact_ones_cost_one_head(s3, tmp_path, monkeypatch):
+    """The ETag of a single PUT is the MD5 the manifest records: an intact shard is trusted on one
+    metadata request (never downloaded whole to hash it), a forged one of the same size is refused."""
+    from lake.dataset import Dataset
+    from lake.store import RemoteStore
+    from tests.test_integrity import SHARD, forged
+
+    lake = "s3://lake/forged"
+    assert cli(s3, "smgen", "generate", *GRID, "--mode", "MEM", "--lake", lake).returncode == 0
+    for key, value in s3.items():
+        monkeypatch.setenv(key, value)
+
+    def no_download(self, name):
+        raise AssertionError(f"{name} was downloaded whole to be hashed")
+
+    with monkeypatch.context() as patched:
+        patched.setattr(RemoteStore, "sha256", no_download)
+        ds = Dataset(f"{lake}/grid-seed3-MEM")
+        assert len(ds.read_all()) == 6000 and len(ds.regular_sampling()[0]) == 125
+    fs = s3fs_for(s3)
+    key = "lake/forged/grid-seed3-MEM/" + SHARD
+    original = fs.cat_file(key)
+    folder = tmp_path / "copy"
+    folder.mkdir()
+    fs.pipe_file(key, forged(original, folder))
+    result = cli(s3, "smtrain", "fit", f"{lake}/grid-seed3-MEM", "--steps", 50, "--out", tmp_path / "run")
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert SHARD in result.stderr and "sha256" in result.stderr and not (tmp_path / "run").exists()

@@ -76,7 +76,7 @@ def plan_fit(
         run = RunDir.open(resume)
         steps = template.steps if "--steps" in given else None
         cfg, change = resumed(run.config, str(run.path), steps, world)
-        ds = run_dataset(cfg, str(run.path))
+        ds = run_dataset(cfg, str(run.path)).verify()
         manifest = ds.manifest
         cfg = cfg if cfg.encoder_layers else cfg.for_dataset(ds.store, manifest)  # a config built by hand
         check_resources(cfg, manifest)
@@ -84,7 +84,7 @@ def plan_fit(
         return FitPlan(cfg, str(run.path), resume=True, change=change)
     if dataset is None:
         raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
-    ds = Dataset.open(dataset, lake)
+    ds = Dataset.open(dataset, lake).verify()
     cfg = replace(template.for_dataset(ds.store, ds.manifest), world_size=world)
     resolve_device(cfg.device)
     check_resources(cfg, ds.manifest)

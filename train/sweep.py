@@ -135,7 +135,7 @@ def sweep(
         import_ray()  # a missing Ray is said before any dataset is generated
     if change:
         notify(change)
-    results = generate(lake, setup, modes, world_seeds, n, spec.default_shard_size, workers=gen_workers)
+    results = generate(lake, setup, modes, world_seeds, n, spec.default_shard_size, workers=gen_workers, notify=notify)
     datasets = [check_lake(lake).child(m.dataset_id) for m, _ in results]
     plans = plan_runs(template, datasets, out, overwrite)
     by_step: dict[int, list[RunDir]] = defaultdict(list)

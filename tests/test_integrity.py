@@ -1,0 +1,92 @@
+"""Bytes that are not the recorded ones are never trained on, exported or shown, and `generate`
+repairs them instead of calling the dataset complete (lake/integrity.py)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from lake.shards import Block, ShardReader, shard_bytes
+from lake.store import LocalStore
+from lake.transitions import Transitions
+from train.cli import main as smtrain_main
+
+from .conftest import SAMPLES, smgen
+
+SHARD = "shard-00001.mcap"  # evaluation reads shard 0: only training meets this one
+
+
+def smtrain(*args):
+    return CliRunner().invoke(smtrain_main, [str(a) for a in args], prog_name="smtrain")
+
+
+def forged(original: bytes, folder: Path) -> bytes:
+    """A valid shard of the same size whose s_t1 is s_t (a predictable MEM), CRCs recomputed and
+    padded into its metadata: nothing but its content tells it apart."""
+    with ShardReader(LocalStore(folder), SHARD, data=original) as reader:
+        metadata = reader.metadata()
+        blocks = [
+            Block(b.first_index, Transitions(**(b.transitions.columns() | {"s_t1": b.transitions.s_t})))
+            for b in reader.blocks()
+        ]
+    short = len(original) - len(shard_bytes(blocks, metadata | {"pad": ""}))
+    data = shard_bytes(blocks, metadata | {"pad": "x" * short})  # metadata is stored uncompressed
+    assert len(data) == len(original)
+    return data
+
+
+@pytest.fixture()
+def tampered(tmp_path) -> Path:
+    lake = tmp_path / "lake"
+    shutil.copytree(SAMPLES, lake)
+    path = lake / "grid-seed0-MEM" / SHARD
+    original = path.read_bytes()
+    path.write_bytes(forged(original, path.parent))
+    assert path.stat().st_size == len(original) and path.read_bytes() != original
+    return lake
+
+
+def one_line(result, prog: str) -> str:
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith(f"{prog}: error: "), result.output
+    return lines[0]
+
+
+def test_a_forged_shard_of_the_same_size_is_never_trained_on_exported_or_shown(tampered, tmp_path):
+    line = one_line(
+        smtrain("fit", "grid-seed0-MEM", "--lake", tampered, "--out", tmp_path / "run", "--steps", 300), "smtrain"
+    )
+    assert SHARD in line and "sha256" in line and not (tmp_path / "run").exists()
+    for args in (
+        ["export", "grid-seed0-MEM", "--format", "parquet", "--out", tmp_path / "x.parquet"],
+        ["view", "grid-seed0-MEM", "--save", tmp_path / "x.rrd"],
+    ):
+        assert SHARD in one_line(smgen(*args, "--lake", tampered), "smgen")
+    assert not (tmp_path / "x.parquet").exists() and not (tmp_path / "x.rrd").exists()
+
+
+def test_generate_repairs_a_forged_shard_instead_of_calling_the_dataset_complete(tampered):
+    args = ["generate", "--setup", "grid", "--mode", "MEM", "--transitions", 4096, "--shard-size", 2048]
+    result = smgen(*args, "--lake", tampered)
+    assert result.exit_code == 0, result.output
+    assert f"grid-seed0-MEM: {SHARD}: its bytes differ from the manifest's sha256" in result.output
+    assert "drawing it again" in result.output and "\twritten" in result.output
+    assert (tampered / "grid-seed0-MEM" / SHARD).read_bytes() == (SAMPLES / "grid-seed0-MEM" / SHARD).read_bytes()
+    assert json.loads((tampered / "grid-seed0-MEM" / "manifest.json").read_text()) == json.loads(
+        (SAMPLES / "grid-seed0-MEM" / "manifest.json").read_text()
+    ) | {"software": json.loads((tampered / "grid-seed0-MEM" / "manifest.json").read_text())["software"]}
+    again = smgen(*args, "--lake", tampered)
+    assert again.exit_code == 0 and "\texists" in again.output and "drawing" not in again.output
+
+
+def test_manifests_record_the_md5_object_storage_reports_for_one_put():
+    import hashlib
+
+    manifest = json.loads((SAMPLES / "grid-seed0-MM" / "manifest.json").read_text())
+    for entry in [*manifest["shards"], manifest["regular_sampling"]]:
+        data = (SAMPLES / "grid-seed0-MM" / entry["file"]).read_bytes()
+        assert entry["md5"] == hashlib.md5(data).hexdigest() and entry["sha256"] == hashlib.sha256(data).hexdigest()
