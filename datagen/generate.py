@@ -173,13 +173,14 @@ def commit_dataset(folder: Store, cfg: GenConfig, records: dict[int, PartRecord]
     another generator committed first, its manifest stands if it records the same content."""
     manifest = build_manifest(cfg, records)
     try:
-        manifest.commit(folder)
+        manifest.commit(folder)  # a retry of our own commit whose answer was lost counts as ours (lake/store.py)
     except FileExistsError:
         existing = load_manifest(folder)
         if (existing.config_hash, existing.shards_digest) != (manifest.config_hash, manifest.shards_digest):
             raise SmspaceError(
                 f"dataset {cfg.dataset_id} was committed meanwhile with other content; run validate on it"
             ) from None
+        folder.delete(GENERATION)  # the generation is done, whoever committed it
         return existing, False
     folder.delete(GENERATION)
     return manifest, True
@@ -287,9 +288,9 @@ def finalize(lake: Store | str, folders: list[Store]) -> list[tuple[Manifest, bo
             record = verify_part(cfg, folder, part)
             if record is None:
                 what = (
-                    "missing"
+                    "not written yet (its rank is still running, or failed)"
                     if not folder.exists(part_file(part))
-                    else "invalid (incomplete, corrupt or of another config)"
+                    else "invalid (corrupt, or of another config)"
                 )
                 raise SmspaceError(f"cannot finalize {cfg.dataset_id}: {part_file(part)} is {what}; re-run its rank")
             records[part] = record

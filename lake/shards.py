@@ -23,10 +23,11 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 import schemas
 from common.errors import DatasetCorrupt, SmspaceError
-from lake.store import LocalStore, Store
+from lake.store import LocalStore, Store, TransferFailed
 from lake.transitions import Transitions
 
 CHUNK_PREFIX = 1 + 8  # a chunk record's opcode and length, before its content
+CHUNK_READS = 3  # a chunk failing its CRC is read again this often before anything is concluded
 
 TRANSITIONS_TOPIC = "/transitions"
 REGULAR_TOPIC = "/regular_sampling"
@@ -202,21 +203,32 @@ class ShardReader:
         low = -1 if starting_at is None else starting_at
         high = float("inf") if ending_before is None else ending_before
         indexes = sorted(self.summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
-        try:
-            for ci in indexes:
-                if not low <= ci.message_start_time < high:
-                    continue
-                data = self._chunk(ci.chunk_start_offset, ci.chunk_length)
+        for ci in indexes:
+            if low <= ci.message_start_time < high:
+                yield from (data for time, data in self._chunk_messages(ci) if low <= time < high)
+
+    def _chunk_messages(self, ci) -> list[tuple[int, bytes]]:
+        """(log time, data) of a chunk's messages. A chunk that fails its checks is fetched again:
+        bytes that differ from one read to the next are a faulty transfer (retried), the same bad
+        bytes twice are a corrupt shard."""
+        seen: list[bytes] = []
+        for _ in range(CHUNK_READS):
+            data = self._chunk(ci.chunk_start_offset, ci.chunk_length)
+            try:
                 if len(data) != ci.chunk_length - CHUNK_PREFIX:
                     raise ValueError(f"chunk at {ci.chunk_start_offset} cut short")
                 chunk = Chunk.read(ReadDataStream(io.BytesIO(data)))
-                for record in breakup_chunk(chunk, validate_crc=self._validate_crcs):
-                    if isinstance(record, Message) and low <= record.log_time < high:
-                        yield record.data
-        except SmspaceError:
-            raise
-        except Exception as e:
-            raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
+                records = breakup_chunk(chunk, validate_crc=self._validate_crcs)
+                return [(r.log_time, r.data) for r in records if isinstance(r, Message)]
+            except SmspaceError:
+                raise
+            except Exception as e:
+                if self._data is not None or data in seen:  # bytes in memory, or read twice alike: stored so
+                    raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
+                seen.append(data)
+        raise TransferFailed(
+            f"{self.path}: the chunk at {ci.chunk_start_offset} arrived different on each of {CHUNK_READS} reads"
+        )
 
     def blocks(self, starting_at: int | None = None, ending_before: int | None = None) -> Iterator[Block]:
         """Decoded batches in file order, optionally only those starting in [starting_at, ending_before)."""

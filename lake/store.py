@@ -14,8 +14,10 @@ import hashlib
 import os
 import shutil
 import stat
+import time
+import uuid
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -96,12 +98,19 @@ class Store(ABC):
         """A seekable reader (for an MCAP summary); small reads come from READ_BLOCK-sized requests."""
 
     @abstractmethod
-    def put(self, name: str, data: bytes) -> None:
-        """Write a whole file at once: readers see the old one or the new one, never a part."""
+    def put(self, name: str, data: bytes) -> str | None:
+        """Write a whole file at once: readers see the old one or the new one, never a part.
+        Returns the new version where the store has versions (an ETag on object storage)."""
 
     @abstractmethod
-    def create(self, name: str, data: bytes) -> None:
+    def create(self, name: str, data: bytes) -> str | None:
         """Write a whole file only if none exists: FileExistsError otherwise (the commit point)."""
+
+    def replace(self, name: str, data: bytes, version: str | None) -> str | None:
+        """Write a whole file only if it is still at `version` (None: only if absent), so that two
+        writers of one file never overwrite each other unseen: WriteConflict otherwise. Local
+        folders rely on their writer's lock instead and simply replace it."""
+        return self.put(name, data)
 
     @abstractmethod
     def delete(self, name: str) -> None:
@@ -243,7 +252,11 @@ def _held(path: Path, busy: str, wait: bool) -> Iterator[None]:
 
 
 class RemoteStore(Store):
-    """A prefix on an fsspec filesystem (s3://, gs://, memory://…): one object per file, no rename."""
+    """A prefix on an fsspec filesystem (s3://, gs://, memory://…): one object per file, no rename.
+
+    Every write carries a token of its own in the object's metadata: a write whose answer was lost
+    is retried by the client (the same request, the same token) and then refused (412) by the
+    condition it set; the token tells that refusal (our write landed) from another writer's object."""
 
     def __init__(self, fs: Any, root: str, url: str):
         self.fs, self.root, self.url = fs, root.rstrip("/"), url.rstrip("/")
@@ -289,19 +302,34 @@ class RemoteStore(Store):
         return int(info["size"])
 
     def read_bytes(self, name: str) -> bytes:
-        with remote_errors(self.url):
-            return self.fs.cat_file(self._key(name))
+        key = self._key(name)
+        # fresh: s3fs sizes a whole-object read from its listing cache, which another writer outdates
+        return self._transfer(name, lambda: (self.fs.invalidate_cache(key), self.fs.cat_file(key))[1])
+
+    def read_range(self, name: str, start: int, length: int) -> bytes:
+        key = self._key(name)
+        return self._transfer(name, lambda: self.fs.cat_file(key, start=start, end=start + length))
+
+    def _transfer(self, name: str, fetch: Callable[[], bytes]) -> bytes:
+        """A read, tried again when the transfer itself failed (a checksum mismatch, a truncated
+        body): the stored bytes are called corrupt only by what reads them whole and intact."""
+        for attempt in range(TRANSFER_ATTEMPTS):
+            try:
+                with remote_errors(self.url):
+                    return fetch()
+            except TransferFailed as e:
+                if attempt == TRANSFER_ATTEMPTS - 1:
+                    raise TransferFailed(
+                        f"{self.url}/{name}: the transfer failed {TRANSFER_ATTEMPTS} times ({e})"
+                    ) from None
+                time.sleep(0.2 * 2**attempt)
+        raise AssertionError("unreachable")
 
     def etag(self, name: str) -> str | None:
         key = self._key(name)
         with remote_errors(self.url):
             info = self.fs.info(key, refresh=True)
-        tag = str(info.get("ETag") or info.get("etag") or "").strip('"')
-        return tag if len(tag) == 32 and all(c in "0123456789abcdef" for c in tag) else None  # "…-N": multipart
-
-    def read_range(self, name: str, start: int, length: int) -> bytes:
-        with remote_errors(self.url):
-            return self.fs.cat_file(self._key(name), start=start, end=start + length)
+        return _md5_etag(info.get("ETag") or info.get("etag"))
 
     def open(self, name: str) -> BinaryIO:
         with remote_errors(self.url):
@@ -311,14 +339,36 @@ class RemoteStore(Store):
         with remote_errors(self.url):
             return self.fs.open(self._key(name), "rb", block_size=1 << 24, cache_type="readahead")
 
-    def put(self, name: str, data: bytes) -> None:
-        with remote_errors(self.url):
-            self.fs.pipe_file(self._key(name), data)
+    def put(self, name: str, data: bytes) -> str | None:
+        return self._put(name, data)
 
-    def create(self, name: str, data: bytes) -> None:
+    def create(self, name: str, data: bytes) -> str | None:
+        try:
+            return self._put(name, data, IfNoneMatch="*")  # refused if the key exists
+        except WriteConflict:
+            raise FileExistsError(f"{self.url}/{name}") from None
+
+    def replace(self, name: str, data: bytes, version: str | None) -> str | None:
+        if version is None:
+            return self._put(name, data, IfNoneMatch="*")
+        return self._put(name, data, IfMatch=f'"{version}"')
+
+    def _put(self, name: str, data: bytes, **condition: str) -> str | None:
         key = self._key(name)
-        with remote_errors(self.url, create=True):
-            self.fs.pipe_file(key, data, mode="create")  # If-None-Match: *, refused if the key exists
+        token = uuid.uuid4().hex  # names this write, not a draw of any result
+        try:
+            with remote_errors(self.url):
+                out = self.fs.pipe_file(key, data, Metadata={WRITE_TOKEN: token}, **condition)
+        except WriteConflict:
+            if condition and self._written_by(token, key):  # our first attempt landed, its answer was lost
+                return hashlib.md5(data, usedforsecurity=False).hexdigest()
+            raise
+        return _md5_etag((out or {}).get("ETag"))
+
+    def _written_by(self, token: str, key: str) -> bool:
+        with remote_errors(self.url):
+            self.fs.invalidate_cache(key)
+            return self.fs.metadata(key).get(WRITE_TOKEN) == token
 
     def delete(self, name: str) -> None:
         key = self._key(name)
@@ -331,34 +381,86 @@ class RemoteStore(Store):
             found = self.fs.glob(f"{self.root}/{pattern}", detail=True)
         prefix = len(self.root) + 1
         return {
-            path[prefix:]: str(info.get("ETag") or info.get("etag") or f"{info.get('size')}-{info.get('mtime')}")
+            path[prefix:]: str(info.get("ETag") or info.get("etag") or f"{info.get('size')}-{info.get('mtime')}").strip(
+                '"'
+            )
             for path, info in found.items()
             if fnmatch.fnmatch(path[prefix:], pattern) and info.get("type", "file") == "file"
         }
 
 
+WRITE_TOKEN = "smspace-write"  # object metadata: the token of the write that stored it
+TRANSFER_ATTEMPTS = 3
+
+
+class WriteConflict(FileExistsError):
+    """A conditional write refused (412): the object is not the version the writer expected."""
+
+
+class TransferFailed(SmspaceError):
+    """The bytes did not arrive whole (a checksum mismatch, a cut connection); the stored object may
+    be sound."""
+
+
+def _md5_etag(tag: Any) -> str | None:
+    """An ETag that is the MD5 of the object's bytes (one PUT), else None (a multipart upload)."""
+    tag = str(tag or "").strip('"')
+    return tag if len(tag) == 32 and all(c in "0123456789abcdef" for c in tag) else None
+
+
 @contextlib.contextmanager
-def remote_errors(url: str, create: bool = False) -> Iterator[None]:
+def remote_errors(url: str) -> Iterator[None]:
     """Whatever s3fs, botocore or aiohttp raise becomes one line naming the place; a missing file
-    stays FileNotFoundError (callers decide what absence means) and a refused create FileExistsError."""
+    stays FileNotFoundError (callers decide what absence means), a refused conditional write is a
+    WriteConflict, a damaged transfer a TransferFailed (worth another attempt)."""
     try:
         yield
-    except FileNotFoundError as e:
-        if _missing_bucket(e):
-            raise SmspaceError(f"{url}: no such bucket") from None
+    except (WriteConflict, TransferFailed):
         raise
-    except FileExistsError:
-        raise
-    except PermissionError as e:
-        raise SmspaceError(f"{url}: access denied ({_short(e)}); check the credentials (AWS_ACCESS_KEY_ID…)") from None
-    except OSError as e:
-        if create and _precondition_failed(e):
-            raise FileExistsError(url) from None
-        raise SmspaceError(f"{url}: {_short(e)}") from None
-    except Exception as e:  # botocore/aiohttp errors are not OSError subclasses
-        if create and _precondition_failed(e):
-            raise FileExistsError(url) from None
+    except Exception as e:
+        if _status(e) == 412:  # by the status code: a key containing "412" is no precondition failure
+            raise WriteConflict(url) from None
+        if isinstance(e, FileNotFoundError):
+            if _missing_bucket(e):
+                raise SmspaceError(f"{url}: no such bucket") from None
+            raise
+        if isinstance(e, PermissionError):
+            raise SmspaceError(
+                f"{url}: access denied ({_short(e)}); check the credentials (AWS_ACCESS_KEY_ID…)"
+            ) from None
+        damaged = _damaged_transfer(e)
+        if damaged:
+            raise TransferFailed(f"{url}: {damaged}") from None
         raise SmspaceError(f"{url}: {_explain(e)}") from None
+
+
+def _chain(e: BaseException) -> Iterator[BaseException]:
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        yield e
+        e = e.__cause__ or e.__context__
+
+
+def _status(e: BaseException) -> int | None:
+    """The HTTP status of the answer behind an error (botocore's ClientError, however wrapped)."""
+    for link in _chain(e):
+        response = getattr(link, "response", None)
+        if isinstance(response, dict):
+            status = response.get("ResponseMetadata", {}).get("HTTPStatusCode")
+            if status is not None:
+                return int(status)
+    return None
+
+
+TRANSFER_ERRORS = ("FlexibleChecksumError", "ResponseStreamingError", "IncompleteRead", "ClientPayloadError")
+
+
+def _damaged_transfer(e: BaseException) -> str | None:
+    for link in _chain(e):
+        if type(link).__name__ in TRANSFER_ERRORS:
+            return f"{type(link).__name__}: {_short(link)}"
+    return None
 
 
 def _short(e: BaseException) -> str:
@@ -369,17 +471,14 @@ def _missing_bucket(e: BaseException) -> bool:
     return "NoSuchBucket" in repr(e) or "bucket does not exist" in str(e).lower()
 
 
-def _precondition_failed(e: BaseException) -> bool:
-    text = repr(e)
-    return "PreconditionFailed" in text or "412" in text or "ConditionalRequestConflict" in text
-
-
 def _explain(e: BaseException) -> str:
     name = type(e).__name__
     if "Credential" in name or "InvalidAccessKeyId" in repr(e) or "SignatureDoesNotMatch" in repr(e):
         return f"access denied ({name}); check the credentials (AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY)"
     if "Connect" in name or "Endpoint" in name:
         return f"cannot reach the storage endpoint ({_short(e)}); check AWS_ENDPOINT_URL"
+    if "Timeout" in name or isinstance(e, TimeoutError):
+        return f"the storage endpoint did not answer in time ({name}; SMSPACE_S3_READ_TIMEOUT sets the limit)"
     return f"{name}: {_short(e)}"
 
 
@@ -394,7 +493,7 @@ def open_store(ref: str | Path) -> Store:
     import fsspec
 
     try:
-        fs, root = fsspec.url_to_fs(ref)
+        fs, root = fsspec.url_to_fs(ref, **(s3_options() if scheme in ("s3", "s3a") else {}))
     except ImportError:
         hint = "pip install 'smspace[s3]'" if scheme in ("s3", "s3a") else f"install the fsspec package for {scheme}://"
         raise SmspaceError(f"{ref}: the {scheme}:// scheme needs a package that is not installed; {hint}") from None
@@ -402,4 +501,29 @@ def open_store(ref: str | Path) -> Store:
         raise SmspaceError(f"{ref}: unknown storage scheme {scheme!r} ({_short(e)})") from None
     if not root.strip("/"):
         raise SmspaceError(f"{ref}: give a bucket (and optionally a prefix), e.g. s3://bucket/lake")
+    if scheme in ("s3", "s3a"):
+        fs.retries = 1  # botocore retries (s3_options); s3fs's own loop around it would multiply them
     return RemoteStore(fs, root, f"{scheme}://{root}")
+
+
+def _env_number(name: str, default: float, kind: type = float) -> Any:
+    raw = os.environ.get(name)
+    if raw is None:
+        return default
+    try:
+        value = kind(raw)
+    except ValueError:
+        raise SmspaceError(f"${name} must be a number, got {raw!r}") from None
+    if not value > 0:
+        raise SmspaceError(f"${name} must be positive, got {raw!r}")
+    return value
+
+
+def s3_options() -> dict[str, Any]:
+    """Time limits and retries of every S3 request (README, "Scaling out"): a frozen endpoint gives
+    one line after at most attempts x (connect + read timeout), never a hang."""
+    connect = _env_number("SMSPACE_S3_CONNECT_TIMEOUT", 5.0)
+    read = _env_number("SMSPACE_S3_READ_TIMEOUT", 20.0)
+    attempts = _env_number("SMSPACE_S3_ATTEMPTS", 3, int)
+    retries = {"max_attempts": attempts, "mode": "standard"}
+    return {"config_kwargs": {"connect_timeout": connect, "read_timeout": read, "retries": retries}}

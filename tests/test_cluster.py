@@ -45,7 +45,8 @@ def test_finalize_with_a_rank_missing_names_the_shard_and_commits_nothing(tmp_pa
         )
     result = smgen("finalize", "grid-seed3-MM", "--lake", lake)
     assert result.exit_code == 2
-    assert "shard-00002.mcap is missing" in result.output and result.output.count("\n") == 1
+    assert "shard-00002.mcap is not written yet (its rank is still running, or failed)" in result.output
+    assert result.output.count("\n") == 1
     assert not (lake / "grid-seed3-MM" / "manifest.json").exists()
     # a damaged part is refused the same way
     (lake / "grid-seed3-MM" / "shard-00002.mcap").write_bytes(b"not an mcap file")
