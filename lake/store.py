@@ -8,6 +8,7 @@ on object storage (docs/FORMAT.md, "Commit protocol").
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import fnmatch
 import hashlib
@@ -356,12 +357,23 @@ class RemoteStore(Store):
     def _put(self, name: str, data: bytes, **condition: str) -> str | None:
         key = self._key(name)
         token = uuid.uuid4().hex  # names this write, not a draw of any result
+        digest = hashlib.md5(data, usedforsecurity=False)
         try:
             with remote_errors(self.url):
-                out = self.fs.pipe_file(key, data, Metadata={WRITE_TOKEN: token}, **condition)
+                out = self.fs.pipe_file(
+                    key,
+                    data,
+                    Metadata={WRITE_TOKEN: token},
+                    ContentMD5=base64.b64encode(digest.digest()).decode(),  # the server checks what arrived
+                    **condition,
+                )
+        except FileNotFoundError:
+            if "IfMatch" not in condition:
+                raise
+            raise WriteConflict(self.url) from None  # the version we expected was deleted (404, not 412)
         except WriteConflict:
             if condition and self._written_by(token, key):  # our first attempt landed, its answer was lost
-                return hashlib.md5(data, usedforsecurity=False).hexdigest()
+                return digest.hexdigest()
             raise
         return _md5_etag((out or {}).get("ETag"))
 
@@ -493,7 +505,13 @@ def open_store(ref: str | Path) -> Store:
     import fsspec
 
     try:
-        fs, root = fsspec.url_to_fs(ref, **(s3_options() if scheme in ("s3", "s3a") else {}))
+        if scheme in ("s3", "s3a"):
+            from lake.s3 import BoundedS3FileSystem  # needs s3fs: the [s3] extra
+
+            fs = BoundedS3FileSystem(skip_instance_cache=True, **s3_options())
+            root = fs._strip_protocol(ref)
+        else:
+            fs, root = fsspec.url_to_fs(ref)
     except ImportError:
         hint = "pip install 'smspace[s3]'" if scheme in ("s3", "s3a") else f"install the fsspec package for {scheme}://"
         raise SmspaceError(f"{ref}: the {scheme}:// scheme needs a package that is not installed; {hint}") from None
@@ -501,8 +519,6 @@ def open_store(ref: str | Path) -> Store:
         raise SmspaceError(f"{ref}: unknown storage scheme {scheme!r} ({_short(e)})") from None
     if not root.strip("/"):
         raise SmspaceError(f"{ref}: give a bucket (and optionally a prefix), e.g. s3://bucket/lake")
-    if scheme in ("s3", "s3a"):
-        fs.retries = 1  # botocore retries (s3_options); s3fs's own loop around it would multiply them
     return RemoteStore(fs, root, f"{scheme}://{root}")
 
 
@@ -526,4 +542,9 @@ def s3_options() -> dict[str, Any]:
     read = _env_number("SMSPACE_S3_READ_TIMEOUT", 20.0)
     attempts = _env_number("SMSPACE_S3_ATTEMPTS", 3, int)
     retries = {"max_attempts": attempts, "mode": "standard"}
-    return {"config_kwargs": {"connect_timeout": connect, "read_timeout": read, "retries": retries}}
+    config = {"connect_timeout": connect, "read_timeout": read, "retries": retries}
+    # botocore's default streams a trailing checksum with every upload, which makes the body a file
+    # and adds `Expect: 100-continue`, whose wait no time limit covers (a frozen endpoint hung every
+    # PUT for good); each PUT carries its Content-MD5 instead (RemoteStore._put), checked by the server
+    config["request_checksum_calculation"] = "when_required"
+    return {"config_kwargs": config}

@@ -177,14 +177,13 @@ def _resume_hint(where: str, world: int):
     try:
         yield
     except KeyboardInterrupt:
+        from common.bounded import run_within
         from train.run_dir import RunDir
 
-        try:
-            step = RunDir.open(where).checkpoint_step()
-        except (SmspaceError, OSError):
-            raise Interrupted(f"interrupted before {where} was created") from None
+        steps: list[int] = []  # the step of the last evaluation, hence of the checkpoint (if the storage answers)
+        run_within([lambda: steps.append(RunDir.open(where).status()["step"])])
         nproc = f" --nproc {world}" if world > 1 else ""
-        kept = f"its checkpoint of step {step} is kept" if step else "it had no checkpoint yet"
+        kept = "its last checkpoint is kept" if not steps else f"its checkpoint of step {steps[0]} is kept"
         raise Interrupted(f"interrupted; {kept}: smtrain fit --resume {where}{nproc}") from None
 
 

@@ -65,6 +65,7 @@ class TrainConfig:
     world_size: int = 1  # processes training this one run (torchrun); a resume needs the same
     # how the run was extended (train/terms.py, rule 3): [{"from_steps": …, "to_steps": …}, …]
     extensions: list[dict[str, int]] = field(default_factory=list)
+    run_id: str = ""  # given when the run folder is created; every file of the run carries it
 
     def __post_init__(self) -> None:
         for name in ("lr_start", "lr_end"):

@@ -80,7 +80,9 @@ def plan_fit(
         manifest = ds.manifest
         cfg = cfg if cfg.encoder_layers else cfg.for_dataset(ds.store, manifest)  # a config built by hand
         check_resources(cfg, manifest)
-        check_checkpoint(run.load_checkpoint(), cfg, manifest, f"{run.path}/{CHECKPOINT}")
+        checkpoint = run.load_checkpoint()
+        check_checkpoint(checkpoint, cfg, manifest, f"{run.path}/{CHECKPOINT}")
+        run.check_whole(checkpoint)
         return FitPlan(cfg, str(run.path), resume=True, change=change)
     if dataset is None:
         raise SmspaceError("DATASET is required (or --resume RUN_DIR)")

@@ -21,6 +21,7 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
+from common.bounded import run_within
 from common.errors import SmspaceError
 from lake.dataset import Dataset
 from train.config import TrainConfig, learning_rate
@@ -114,6 +115,7 @@ def resume_members(learner: Learner, members: list[Member], device: torch.device
     for r, m in enumerate(members):
         ckpt = m.run.load_checkpoint(str(device))
         check_checkpoint(ckpt, m.cfg, m.dataset.manifest, f"{m.run.path}/checkpoint.pt")
+        m.run.check_whole(ckpt)
         learner.load(r, ckpt)
         m.stream.load_state_dict(ckpt["stream"])
         step = int(ckpt["step"])
@@ -229,16 +231,15 @@ def _next_batch(batches) -> tuple[torch.Tensor, ...]:
 @contextmanager
 def recorded_outcome(runs: list[RunDir]) -> Iterator[None]:
     """Whatever stops training early — bad data, a NaN, Ctrl-C, a bug — is written in each run's
-    status, so that no run looks alive after its process is gone."""
+    status, so that no run looks alive after its process is gone. Best effort, within a few
+    seconds: the storage may be what failed, and the cause must not be hidden behind its error."""
     try:
         yield
     except SmspaceError as e:
         _mark(runs, "failed", str(e))
         raise
     except KeyboardInterrupt:
-        for run in runs:
-            step = run.status()["step"]  # the step of the last evaluation, hence of the checkpoint
-            run.set_status("interrupted", step, f"interrupted; the checkpoint of step {step} is kept: resume it")
+        _mark(runs, "interrupted", "interrupted; the checkpoint of step {step} is kept: resume it")
         raise
     except Exception as e:
         _mark(runs, "failed", f"{type(e).__name__}: {e}")
@@ -246,5 +247,10 @@ def recorded_outcome(runs: list[RunDir]) -> Iterator[None]:
 
 
 def _mark(runs: list[RunDir], state: str, message: str) -> None:
-    for run in runs:
-        run.set_status(state, run.status()["step"], " ".join(message.split()))
+    """Each run's status, with the step of its last evaluation (hence of its checkpoint)."""
+
+    def mark(run: RunDir) -> None:
+        step = run.status()["step"]
+        run.set_status(state, step, " ".join(message.replace("{step}", str(step)).split()))
+
+    run_within([lambda run=run: mark(run) for run in runs])

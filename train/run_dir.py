@@ -13,6 +13,8 @@ import pickle
 import re  # only for its exception type: checkpoints load with weights_only=True
 import shutil
 import socket
+import uuid
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +25,7 @@ import torch
 
 from common.errors import SmspaceError
 from common.locks import HeldLock, hold_lock
-from lake.store import LocalStore, Store, open_store
+from lake.store import LocalStore, Store, WriteConflict, open_store
 from train.config import TrainConfig
 
 CONFIG = "config.json"
@@ -32,6 +34,7 @@ EMBEDDINGS = "embeddings"
 CHECKPOINT = "checkpoint.pt"
 STATUS = "status.json"
 LOCK = ".lock"  # held (flock) by the process training the run
+RUN_ID = "run_id"  # in config.json, the checkpoint, the metrics' and embeddings' metadata, status.json
 
 METRICS_SCHEMA = pa.schema(
     [
@@ -73,6 +76,11 @@ class RunDir:
     def __init__(self, where: Path | str | Store):
         self.store: Store = where if isinstance(where, Store) else open_store(where)
         self._lock: HeldLock | None = None
+        # while this process trains the run: the version of each file it last saw or wrote (None:
+        # absent), so that on object storage it writes over its own versions only (lake/store.py)
+        self._versions: dict[str, str | None] | None = None
+        self._lost = False  # another process took the folder over: this one writes nothing more
+        self._run_id: str | None = None
 
     @property
     def path(self) -> Path | str:
@@ -91,17 +99,56 @@ class RunDir:
         return self.store.child(EMBEDDINGS)
 
     def claim(self) -> None:
-        """Become the one process training this run; another one gets a clear refusal (local
-        folders: a lock; object storage has none, and a sweep gives each run to one task)."""
+        """Become the one process training this run; another one gets a clear refusal. Local
+        folders have a lock; on object storage every later write of this process is conditional on
+        the versions seen here, so a second writer makes one of the two stop in one line."""
         if self._lock is None and isinstance(self.store, LocalStore):
             busy = f"{self.path} is being trained by another process"
             self._lock = hold_lock(self.store.path / LOCK, busy, wait=False)
+        if self._versions is None:
+            found = self.store.fingerprints("*") | {
+                f"{EMBEDDINGS}/{name}": tag for name, tag in self._embeddings().fingerprints("*").items()
+            }
+            self._versions = dict(found)
 
     def release(self) -> None:
         """Stop being the trainer (to hand the run to another process, which claims it)."""
         if self._lock is not None:
             self._lock.release()
             self._lock = None
+        self._versions = None
+
+    def _write(self, name: str, data: bytes, in_embeddings: bool = False) -> None:
+        """Every file of the run is written here, whole; by a claiming process only over the
+        version it last saw (a new file: only if still absent)."""
+        folder = self._embeddings() if in_embeddings else self.store
+        key = f"{EMBEDDINGS}/{name}" if in_embeddings else name
+        if self._versions is None:
+            folder.put(name, data)
+            return
+        if self._lost:
+            raise SmspaceError(f"{self.path} is written by another process; this one stopped")
+        try:
+            self._versions[key] = folder.replace(name, data, self._versions.get(key))
+        except WriteConflict:
+            self._lost = True
+            raise SmspaceError(
+                f"{self.path}: another process writes this run folder ({key} changed under this one); "
+                "this one stopped and left it to the other"
+            ) from None
+
+    def _delete(self, name: str, in_embeddings: bool = False) -> None:
+        (self._embeddings() if in_embeddings else self.store).delete(name)
+        if self._versions is not None:
+            self._versions[f"{EMBEDDINGS}/{name}" if in_embeddings else name] = None
+
+    @property
+    def run_id(self) -> str:
+        """The id config.json gives this run; every file of the run carries it, so a folder whose
+        parts were written by different runs is told apart ("" for runs of an older smspace)."""
+        if self._run_id is None:
+            self._run_id = self.config.run_id
+        return self._run_id
 
     # -- lifecycle ------------------------------------------------------------------------
     @classmethod
@@ -111,7 +158,15 @@ class RunDir:
         run.claim()
         if run.store.exists(CONFIG):
             run._clear()
-        run.write_config(cfg)
+        cfg = replace(cfg, run_id=uuid.uuid4().hex)  # an id, not a draw: nothing computed depends on it
+        try:
+            run._write(CONFIG, _config_bytes(cfg))  # create-only: of two processes creating it, one wins
+        except SmspaceError:
+            run.release()
+            raise SmspaceError(
+                f"{run.path}: another process created a run there meanwhile; choose another --out"
+            ) from None
+        run._run_id = cfg.run_id
         return run
 
     @classmethod
@@ -127,7 +182,7 @@ class RunDir:
         return run
 
     def write_config(self, cfg: TrainConfig) -> None:
-        self.store.put(CONFIG, (json.dumps(cfg.to_dict(), indent=1) + "\n").encode())
+        self._write(CONFIG, _config_bytes(cfg))
 
     @classmethod
     def open(cls, where: Path | str | Store) -> RunDir:
@@ -138,10 +193,10 @@ class RunDir:
 
     def _clear(self) -> None:
         for name in (CONFIG, METRICS, CHECKPOINT, STATUS):
-            self.store.delete(name)
+            self._delete(name)
         embeddings = self._embeddings()
         for name in embeddings.list("*"):
-            embeddings.delete(name)
+            self._delete(name, in_embeddings=True)
         if isinstance(embeddings, LocalStore):
             shutil.rmtree(embeddings.path, ignore_errors=True)
         self.store.remove_partials()
@@ -169,10 +224,12 @@ class RunDir:
     # -- status ---------------------------------------------------------------------------
     def set_status(self, state: str, step: int, message: str = "") -> None:
         """The run's state; a running one records who runs it, so that `ls` can tell when it died."""
-        status = {"state": state, "step": step, "message": message}
+        if self._lost:  # the folder is another process's now
+            return
+        status = {"state": state, "step": step, "message": message, "run_id": self.run_id}
         if state == "running":
             status |= {"pid": os.getpid(), "host": socket.gethostname()}
-        self.store.put(STATUS, json.dumps(status).encode())
+        self._write(STATUS, json.dumps(status).encode())
 
     def status(self) -> dict[str, Any]:
         """The recorded state; "running" becomes "stale" when its process is gone from this host."""
@@ -197,7 +254,8 @@ class RunDir:
             raise SmspaceError(f"{self.path}/{METRICS} is unreadable ({type(e).__name__})") from e
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
-        self.store.put(METRICS, _parquet_bytes(pa.Table.from_pylist(rows, schema=METRICS_SCHEMA)))
+        table = pa.Table.from_pylist(rows, schema=METRICS_SCHEMA).replace_schema_metadata({RUN_ID: self.run_id})
+        self._write(METRICS, _parquet_bytes(table))
 
     def write_embeddings(self, step: int, h: np.ndarray, p: np.ndarray, extra: dict[str, np.ndarray]) -> None:
         """h of the regular sampling with its p (so anyone can recompute the metrics), plus extras."""
@@ -208,10 +266,10 @@ class RunDir:
             "h": _fixed_list(h),
             "p": _fixed_list(p),
         }
-        table = pa.table(columns, metadata={"step": str(step)})
-        folder.put(embedding_file(step), _parquet_bytes(table))
+        table = pa.table(columns, metadata={"step": str(step), RUN_ID: self.run_id})
+        self._write(embedding_file(step), _parquet_bytes(table), in_embeddings=True)
         for name, value in extra.items():
-            folder.put(array_file(name, step), _npy_bytes(value))
+            self._write(array_file(name, step), _npy_bytes(value), in_embeddings=True)
 
     def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
         table = _parquet(self._read(embedding_file(step), self._embeddings()))
@@ -233,13 +291,30 @@ class RunDir:
         for name in folder.list("*"):
             match = EVALUATION_FILE.fullmatch(name)
             if match and int(match["step"]) > step:
-                folder.delete(name)
+                self._delete(name, in_embeddings=True)
 
     # -- checkpoints --------------------------------------------------------------------------
     def save_checkpoint(self, state: dict[str, Any]) -> None:
         buf = io.BytesIO()
-        torch.save(state, buf)
-        self.store.put(CHECKPOINT, buf.getvalue())
+        torch.save(state | {RUN_ID: self.run_id}, buf)
+        self._write(CHECKPOINT, buf.getvalue())
+
+    def check_whole(self, checkpoint: dict[str, Any]) -> None:
+        """Refuse a folder whose config, metrics and checkpoint were written by different runs
+        (two processes writing one folder): continuing it would mix them."""
+        ids = {CONFIG: self.run_id, CHECKPOINT: str(checkpoint.get(RUN_ID) or "")}
+        try:
+            metadata = pq.read_schema(pa.BufferReader(self._read(METRICS))).metadata or {}
+            ids[METRICS] = metadata.get(RUN_ID.encode(), b"").decode()
+        except FileNotFoundError:
+            pass
+        found = {name: run_id for name, run_id in ids.items() if run_id}  # "": written by an older smspace
+        if len(set(found.values())) > 1:
+            parts = ", ".join(f"{name} of run {run_id[:8]}" for name, run_id in found.items())
+            raise SmspaceError(
+                f"{self.path} holds parts of different runs ({parts}): two processes wrote it; "
+                "train it anew with --overwrite"
+            )
 
     def checkpoint_step(self) -> int:
         """The step of the last checkpoint; 0 when there is none yet."""
@@ -260,6 +335,10 @@ class RunDir:
             ) from e
         except Exception as e:
             raise SmspaceError(f"checkpoint {where} is unreadable ({type(e).__name__}); it was not loaded") from e
+
+
+def _config_bytes(cfg: TrainConfig) -> bytes:
+    return (json.dumps(cfg.to_dict(), indent=1) + "\n").encode()
 
 
 def _entries(store: Store) -> list[str]:

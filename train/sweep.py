@@ -82,7 +82,7 @@ def plan_runs(
             continue
         run = RunDir.open(path)
         old = run.config
-        diff = differing(old.to_dict(), cfg.to_dict(), ignore=("steps", *HISTORY))
+        diff = differing(old.to_dict(), cfg.to_dict(), ignore=("steps", "run_id", *HISTORY))
         diff = [k for k in diff if k in run.recorded_keys()]  # a field an older smspace did not record is unknown
         if diff:
             raise SmspaceError(f"{path} holds a run with another {', '.join(diff)}; pass --overwrite or --out")
@@ -90,7 +90,8 @@ def plan_runs(
             raise SmspaceError(f"{path} holds a run of {old.steps} steps; this study has {cfg.steps}")
         extended = None
         if cfg.steps > old.steps:
-            extended = replace(cfg, extensions=[*old.extensions, {"from_steps": old.steps, "to_steps": cfg.steps}])
+            extension = {"from_steps": old.steps, "to_steps": cfg.steps}
+            extended = replace(cfg, run_id=old.run_id, extensions=[*old.extensions, extension])
         actions.append((path, cfg, (run, extended)))
     out.make()
     out.put(STUDY, (json.dumps({"terms": terms(cfgs[0])}, indent=1) + "\n").encode())

@@ -27,7 +27,7 @@ from typing import Any
 from common.errors import SmspaceError
 from train.config import TrainConfig
 
-PER_RUN = ("dataset", "dataset_id", "dataset_config_hash", "dataset_shards_sha256", "mode", "seed")
+PER_RUN = ("dataset", "dataset_id", "dataset_config_hash", "dataset_shards_sha256", "mode", "seed", "run_id")
 EXECUTION = ("device", "threads", "loader_workers", "world_size")  # how a run ran, not what it computed
 HISTORY = ("extensions",)
 STUDY = "study.json"
