@@ -21,7 +21,7 @@ from lake.manifest import MANIFEST, Manifest, load_manifest
 from lake.store import Store, open_store
 
 CATALOG = "catalog.parquet"
-SOURCES_KEY = b"smspace.manifests"  # Parquet metadata: {dataset id: manifest version}
+SOURCES_KEY = b"smspace.manifests"  # Parquet metadata: {"versions": {id: manifest version}, "broken": [id…]}
 
 CATALOG_SCHEMA = pa.schema(
     [
@@ -63,14 +63,28 @@ def manifest_versions(lake: Store) -> dict[str, str]:
 
 def scan_manifests(lake: Path | str | Store, ids: list[str] | None = None) -> tuple[list[Manifest], list[str]]:
     """The sound manifests of a lake, and one line per dataset folder whose manifest is not."""
-    lake = _store(lake)
-    manifests, broken = [], []
-    for dataset_id in sorted(manifest_versions(lake) if ids is None else ids):
+    manifests, broken, _ = _scan(_store(lake), sorted(manifest_versions(_store(lake)) if ids is None else ids))
+    return manifests, [f"{display_name(i)}: {why}" for i, why in broken.items()]
+
+
+def _scan(lake: Store, ids: list[str]) -> tuple[list[Manifest], dict[str, str], set[str]]:
+    """(sound manifests, {id: why broken}, ids whose manifest was gone when read)."""
+    manifests, broken, gone = [], {}, set()
+    for dataset_id in ids:
+        folder = lake.child(dataset_id)
         try:
-            manifests.append(load_manifest(lake.child(dataset_id)))
-        except (SmspaceError, FileNotFoundError) as e:
-            broken.append(f"{display_name(dataset_id)}: {e}")
-    return manifests, broken
+            data = folder.read_bytes(MANIFEST)
+        except FileNotFoundError:  # deleted since the listing (a repair under way): not known either way
+            gone.add(dataset_id)
+            continue
+        except SmspaceError as e:
+            broken[dataset_id] = str(e)
+            continue
+        try:
+            manifests.append(load_manifest(folder, data))
+        except SmspaceError as e:
+            broken[dataset_id] = str(e)
+    return manifests, broken, gone
 
 
 def _rows(manifests: list[Manifest]) -> pa.Table:
@@ -99,16 +113,31 @@ def catalog_table(lake: Path | str | Store) -> pa.Table:
 
 
 def rebuild_catalog(lake: Path | str | Store) -> pa.Table:
-    """The catalog anew from the manifests; a broken dataset is left out, never fatal."""
+    """The catalog anew from the manifests; a broken dataset is left out, never fatal.
+
+    It records the manifest version each row was read from, and which datasets were broken: a
+    dataset whose manifest was gone when read is recorded neither way, so the next reader finds
+    the cache stale and reads it again (a repair that re-commits identical bytes keeps its ETag)."""
     lake = _store(lake)
     versions = manifest_versions(lake)
-    table = _rows(scan_manifests(lake, list(versions))[0])
-    # a dataset whose manifest is broken keeps its version here too: the cache stays valid for it
-    meta = {SOURCES_KEY: json.dumps(versions, sort_keys=True).encode()}
+    manifests, broken, gone = _scan(lake, sorted(versions))
+    table = _rows(manifests)
+    sources = {"versions": {k: v for k, v in versions.items() if k not in gone}, "broken": sorted(broken)}
     buf = io.BytesIO()
-    pq.write_table(table.replace_schema_metadata(meta), buf, compression="zstd")
+    metadata = {SOURCES_KEY: json.dumps(sources, sort_keys=True).encode()}
+    pq.write_table(table.replace_schema_metadata(metadata), buf, compression="zstd")
     lake.put(CATALOG, buf.getvalue())
     return table.replace_schema_metadata(None)
+
+
+def _cache_holds(table: pa.Table, sources: dict, versions: dict[str, str]) -> bool:
+    """Whether a cached table is exactly what the manifests listed now would give: the same
+    versions, and one row for each of them that is not broken (no more, no fewer)."""
+    if not (isinstance(sources, dict) and sources.get("versions") == versions and table.schema.equals(CATALOG_SCHEMA)):
+        return False
+    listed = set(versions) - set(sources.get("broken") or [])
+    ids = table.column("id").to_pylist()
+    return len(ids) == len(set(ids)) and set(ids) == listed
 
 
 def read_catalog(lake: Path | str | Store) -> pa.Table:
@@ -120,9 +149,9 @@ def read_catalog(lake: Path | str | Store) -> pa.Table:
     versions = manifest_versions(lake)
     try:
         table = pq.read_table(pa.BufferReader(lake.read_bytes(CATALOG)))  # a BytesIO aborts at exit (pyarrow)
-        recorded = json.loads((table.schema.metadata or {}).get(SOURCES_KEY, b"null"))
+        sources = json.loads((table.schema.metadata or {}).get(SOURCES_KEY, b"null"))
         table = table.replace_schema_metadata(None)
-        if table.schema.equals(CATALOG_SCHEMA) and recorded == versions:
+        if _cache_holds(table, sources, versions):
             return table
     except (OSError, pa.ArrowException, SmspaceError, ValueError):
         pass  # missing, unreadable or of an older layout: derive it again

@@ -221,3 +221,44 @@ def test_worlds_derive_their_seeds(tmp_path):
 def test_python_dash_m_entry_point():
     proc = subprocess.run([sys.executable, "-m", "datagen.cli", "--help"], capture_output=True, text=True)
     assert proc.returncode == 0 and "generate" in proc.stdout
+
+
+def test_a_repair_racing_a_listing_never_hides_a_complete_dataset(grid_lake, tmp_path, monkeypatch):
+    """An `ls` listed a manifest, a repair removed it before `ls` read it, then re-committed the
+    same bytes (same version): the catalog recorded the version without the row and hid the
+    dataset from every later `ls`. The catalog may be stale, never wrong."""
+    import os
+    import shutil
+
+    import lake.catalog as catalog
+
+    lake = tmp_path / "lake"
+    shutil.copytree(grid_lake, lake)
+    manifest = lake / "grid-seed3-MM" / "manifest.json"
+    listed = catalog.manifest_versions(catalog.open_store(lake))
+    data, st = manifest.read_bytes(), manifest.stat()
+    manifest.unlink()  # the repair took it away between the listing and the read
+    with monkeypatch.context() as patched:
+        patched.setattr(catalog, "manifest_versions", lambda store: dict(listed))
+        assert "grid-seed3-MM" not in catalog.rebuild_catalog(lake).column("id").to_pylist()
+    manifest.write_bytes(data)  # ... and committed the same bytes again: the same version
+    os.utime(manifest, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert catalog.manifest_versions(catalog.open_store(lake)) == listed
+    assert "grid-seed3-MM" in catalog.read_catalog(lake).column("id").to_pylist()
+
+
+def test_a_catalog_row_without_a_dataset_is_never_shown(grid_lake, tmp_path):
+    import shutil
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    lake = tmp_path / "lake"
+    shutil.copytree(grid_lake, lake)
+    assert smgen("ls", "--lake", lake).exit_code == 0  # a catalog in step with the listing
+    table = pq.read_table(lake / "catalog.parquet")
+    ghost = table.slice(0, 1).to_pylist()[0] | {"id": "grid-seed9-MM", "world_seed": 9}
+    forged = pa.concat_tables([table, pa.Table.from_pylist([ghost], schema=table.schema)])
+    pq.write_table(forged.replace_schema_metadata(table.schema.metadata), lake / "catalog.parquet")
+    listed = smgen("ls", "--lake", lake, "--json").output
+    assert "grid-seed9-MM" not in listed and listed.count('"id"') == 3
