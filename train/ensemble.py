@@ -174,8 +174,16 @@ def train_ensemble(runs: list[RunDir], resume: bool = False, threads: int = 1, p
     """Train runs together to their configured steps: from scratch, or (resume) from their checkpoints."""
     torch.set_num_threads(threads)
     device = resolve_device(runs[0].config.device)
-    for run in runs:
-        run.claim()  # before anything is recorded: a run another process trains is left untouched
+    try:
+        for run in runs:
+            run.claim()  # before anything is recorded: a run another process trains is left untouched
+        _train_claimed(runs, resume, device, progress)
+    finally:
+        for run in runs:
+            run.release()  # the claims end with the training, however it ends
+
+
+def _train_claimed(runs: list[RunDir], resume: bool, device: torch.device, progress: bool) -> None:
     with recorded_outcome(runs):
         members = [open_member(run, run.config, device) for run in runs]
         _check_compatible([m.cfg for m in members])

@@ -59,6 +59,7 @@ def write_evaluation(
     data: EvalData,
     pred: np.ndarray,
     checkpoint: dict[str, Any],
+    keep_previous: bool = False,
 ) -> None:
     """Metrics row, h with p, predictions, then the checkpoint: in this order, so a kill between
     two writes leaves the checkpoint at or behind the metrics (resume trims them back)."""
@@ -67,5 +68,5 @@ def write_evaluation(
     extra = {PREDICTED: pred} | ({TRUE: data.s_t1[:N_PREDICTIONS].cpu().numpy()} if step == 0 else {})
     run.write_embeddings(step, h, data.p_regular, extra)
     run.write_metrics(rows)
-    run.save_checkpoint(checkpoint)
+    run.save_checkpoint(checkpoint, keep_previous)
     run.set_status("running", step)

@@ -108,25 +108,34 @@ def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Rank
 
 
 def resume_members(learner: Learner, members: list[Member], device: torch.device, ranks: Ranks = SINGLE) -> int:
-    """Load every run's checkpoint; all must be at the same step, which is returned."""
+    """Load every run's checkpoint, all at one step, which is returned. Members of an ensemble
+    that a kill left between the checkpoint writes of one evaluation (some at step S, the others
+    at the evaluation before) are rolled back to the step all reached: the ensemble resumes as the
+    uninterrupted one would have gone on."""
     from train.fit import check_checkpoint  # the lone model's shapes: what every checkpoint holds
 
-    steps = set()
-    for r, m in enumerate(members):
-        ckpt = m.run.load_checkpoint(str(device))
+    checkpoints = [m.run.load_checkpoint(str(device)) for m in members]
+    step = min(int(ckpt["step"]) for ckpt in checkpoints)
+    for r, (m, ckpt) in enumerate(zip(members, checkpoints, strict=True)):
+        if int(ckpt["step"]) > step:
+            try:
+                ckpt = m.run.roll_back(str(device))
+            except FileNotFoundError:
+                ckpt = {"step": None}
+            if ckpt["step"] != step:
+                raise SmspaceError(
+                    f"runs trained together must resume at one step: {m.run.path} is at step "
+                    f"{checkpoints[r]['step']} and keeps no checkpoint of step {step}"
+                )
         check_checkpoint(ckpt, m.cfg, m.dataset.manifest, f"{m.run.path}/checkpoint.pt")
         m.run.check_whole(ckpt)
         learner.load(r, ckpt)
         m.stream.load_state_dict(ckpt["stream"])
-        step = int(ckpt["step"])
         m.elapsed = float(ckpt["elapsed_s"])
         m.rows = [row for row in m.run.metrics() if row["step"] <= step]
         if ranks.primary:  # the run folder is rank 0's
             m.run.truncate_after(step)
-        steps.add(step)
-    if len(steps) != 1:
-        raise SmspaceError(f"runs trained together must be at one step; their checkpoints are at {sorted(steps)}")
-    return steps.pop()
+    return step
 
 
 def train(
@@ -161,7 +170,7 @@ def train(
                 "elapsed_s": m.elapsed,
             }
             state = {**learner.state_of(r, lr), "stream": m.stream.state_dict(), "step": step, "elapsed_s": m.elapsed}
-            write_evaluation(m.run, m.rows, row, hs[r], m.data, preds[r], state)
+            write_evaluation(m.run, m.rows, row, hs[r], m.data, preds[r], state, keep_previous=count > 1)
 
     def diverged(at: int, losses: np.ndarray) -> TrainingFailed:
         bad = ", ".join(members[r].run.name for r in np.flatnonzero(~np.isfinite(losses)))

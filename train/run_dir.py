@@ -32,6 +32,7 @@ CONFIG = "config.json"
 METRICS = "metrics.parquet"
 EMBEDDINGS = "embeddings"
 CHECKPOINT = "checkpoint.pt"
+PREVIOUS = "checkpoint-previous.pt"  # members of an ensemble: the evaluation before, to roll back to
 STATUS = "status.json"
 LOCK = ".lock"  # held (flock) by the process training the run
 RUN_ID = "run_id"  # in config.json, the checkpoint, the metrics' and embeddings' metadata, status.json
@@ -81,6 +82,7 @@ class RunDir:
         self._versions: dict[str, str | None] | None = None
         self._lost = False  # another process took the folder over: this one writes nothing more
         self._run_id: str | None = None
+        self._last_checkpoint: bytes | None = None  # the bytes this process last wrote or resumed from
 
     @property
     def path(self) -> Path | str:
@@ -192,7 +194,7 @@ class RunDir:
         return run
 
     def _clear(self) -> None:
-        for name in (CONFIG, METRICS, CHECKPOINT, STATUS):
+        for name in (CONFIG, METRICS, CHECKPOINT, PREVIOUS, STATUS):
             self._delete(name)
         embeddings = self._embeddings()
         for name in embeddings.list("*"):
@@ -294,10 +296,24 @@ class RunDir:
                 self._delete(name, in_embeddings=True)
 
     # -- checkpoints --------------------------------------------------------------------------
-    def save_checkpoint(self, state: dict[str, Any]) -> None:
+    def save_checkpoint(self, state: dict[str, Any], keep_previous: bool = False) -> None:
+        """The new commit record; `keep_previous`: the one it replaces is kept beside it first, so
+        that a member of an ensemble that a kill left one evaluation ahead of the others can be
+        rolled back to the step all of them reached (train/loop.py, resume_members)."""
         buf = io.BytesIO()
         torch.save(state | {RUN_ID: self.run_id}, buf)
+        if keep_previous and self._last_checkpoint is not None:
+            self._write(PREVIOUS, self._last_checkpoint)
         self._write(CHECKPOINT, buf.getvalue())
+        self._last_checkpoint = buf.getvalue()
+
+    def roll_back(self, device: str = "cpu") -> dict[str, Any]:
+        """The kept previous checkpoint, made the commit record again (this run was one evaluation
+        ahead of its ensemble)."""
+        data = self._read(PREVIOUS)
+        self._write(CHECKPOINT, data)
+        self._last_checkpoint = data
+        return self._loaded(data, f"{self.path}/{PREVIOUS}", device)
 
     def check_whole(self, checkpoint: dict[str, Any]) -> None:
         """Refuse a folder whose config, metrics and checkpoint were written by different runs
@@ -321,11 +337,15 @@ class RunDir:
         return int(self.load_checkpoint()["step"]) if self.store.exists(CHECKPOINT) else 0
 
     def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
-        where = f"{self.path}/{CHECKPOINT}"
         try:
             data = self._read(CHECKPOINT)
         except FileNotFoundError:
             raise SmspaceError(f"{self.path} has no checkpoint to resume from") from None
+        self._last_checkpoint = data
+        return self._loaded(data, f"{self.path}/{CHECKPOINT}", device)
+
+    @staticmethod
+    def _loaded(data: bytes, where: str, device: str) -> dict[str, Any]:
         try:
             return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
         except pickle.UnpicklingError as e:  # weights_only refused an object: never load it another way

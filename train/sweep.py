@@ -8,7 +8,6 @@ from their checkpoints, grouped by the step they reached.
 from __future__ import annotations
 
 import json
-from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -27,17 +26,27 @@ from train.run_dir import CONFIG, RunDir
 from train.terms import HISTORY, STUDY, differing, study_template, terms
 
 
-def recorded_study(out: Store) -> dict[str, Any] | None:
-    """The terms of the study already in `out`: its study.json, else (a folder of an older smspace)
-    the terms its runs share; None for a new study."""
+def study_record(out: Store) -> dict[str, Any] | None:
+    """The study.json of `out` ({"terms": …, "ensembles": [[run name, …], …]}), None if absent."""
     try:
-        return json.loads(out.read_bytes(STUDY))["terms"]
+        record = json.loads(out.read_bytes(STUDY))
+        if not isinstance(record, dict) or not isinstance(record["terms"], dict):
+            raise TypeError("not a study record")
+        return record
     except FileNotFoundError:
-        pass
+        return None
     except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError) as e:
         raise SmspaceError(
             f"{out.url}/{STUDY} is unreadable ({type(e).__name__}); pass --overwrite to start anew"
         ) from e
+
+
+def recorded_study(out: Store) -> dict[str, Any] | None:
+    """The terms of the study already in `out`: its study.json, else (a folder of an older smspace)
+    the terms its runs share; None for a new study."""
+    record = study_record(out)
+    if record is not None:
+        return record["terms"]
     found: dict[str, dict[str, Any]] = {}
     for path in out.list(f"*/{CONFIG}"):
         run = RunDir.open(out.child(path.split("/")[0]))
@@ -94,7 +103,8 @@ def plan_runs(
             extended = replace(cfg, run_id=old.run_id, extensions=[*old.extensions, extension])
         actions.append((path, cfg, (run, extended)))
     out.make()
-    out.put(STUDY, (json.dumps({"terms": terms(cfgs[0])}, indent=1) + "\n").encode())
+    record = {} if overwrite else (study_record(out) or {})
+    out.put(STUDY, _study_bytes(record | {"terms": terms(cfgs[0])}))
     plans = []
     for path, cfg, existing in actions:
         if existing is None:
@@ -139,15 +149,34 @@ def sweep(
     results = generate(lake, setup, modes, world_seeds, n, spec.default_shard_size, workers=gen_workers, notify=notify)
     datasets = [check_lake(lake).child(m.dataset_id) for m, _ in results]
     plans = plan_runs(template, datasets, out, overwrite)
-    by_step: dict[int, list[RunDir]] = defaultdict(list)
-    for run, step in plans:
-        if step < run.config.steps:
-            by_step[step].append(run)
-    chunks = [
-        (chunk, step > 0) for step, runs in sorted(by_step.items()) for chunk in ensembles(runs, max_ensemble, workers)
-    ]
+    at = {run.name: step for run, step in plans}
+    chunks = []
+    for group in study_ensembles(out, [run for run, _ in plans], max_ensemble, workers):
+        todo = [run for run in group if at[run.name] < run.config.steps]
+        if todo:  # resumed from the step all members reached (train/loop.py, resume_members)
+            chunks.append((todo, min(at[run.name] for run in todo) > 0))
     run_ensembles(chunks, executor, workers, template.threads, template.device)
     return [run for run, _ in plans]
+
+
+def _study_bytes(record: dict[str, Any]) -> bytes:
+    return (json.dumps(record, indent=1) + "\n").encode()
+
+
+def study_ensembles(out: Store, runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[RunDir]]:
+    """The ensembles the runs train in: those study.json recorded when they first trained (a
+    re-run trains the same groups whatever --max-ensemble or --workers say now, so that resuming
+    never changes the computation), and new groups for new runs, recorded in their turn."""
+    record = study_record(out) or {}
+    by_name = {run.name: run for run in runs}
+    groups = [[by_name[n] for n in names if n in by_name] for names in record.get("ensembles", [])]
+    groups = [g for g in groups if g]
+    grouped = {run.name for g in groups for run in g}
+    new = ensembles([run for run in runs if run.name not in grouped], max_ensemble, workers)
+    if new:
+        recorded = record.get("ensembles", []) + [[run.name for run in g] for g in new]
+        out.put(STUDY, _study_bytes(record | {"ensembles": recorded}))
+    return groups + new
 
 
 def ensembles(runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[RunDir]]:
