@@ -14,6 +14,7 @@ import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -21,9 +22,21 @@ from common.cli import die_with_parent
 from common.errors import SmspaceError
 
 
+class WorkerDied(SmspaceError):
+    """A worker process ended outside our control (killed, out of memory); callers add what was
+    kept and the command that continues."""
+
+    exit_code = 1
+
+
+POLL_S = 0.5  # how often the workers are looked at: a spawn pool never notices a killed one (CPython 3.11)
+
+
 def in_processes(fn: Callable, tasks: list[tuple], workers: int) -> Iterator[tuple[tuple, Any]]:
     """(task, fn(*task)) in completion order, from `workers` spawned processes (SAPIEN hangs in
-    forked children, torch dislikes them). An error, Ctrl-C or SIGTERM kills the workers at once."""
+    forked children, torch dislikes them). An error, Ctrl-C or SIGTERM kills the workers at once;
+    a worker that dies is named in a WorkerDied."""
+    _quiet_resource_tracker()
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(
         max_workers=workers, mp_context=ctx, initializer=die_with_parent, initargs=(signal.SIGKILL, os.getpid())
@@ -32,14 +45,40 @@ def in_processes(fn: Callable, tasks: list[tuple], workers: int) -> Iterator[tup
             futures = {pool.submit(fn, *task): task for task in tasks}
             pending = set(futures)
             while pending:
-                done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                done, pending = wait(pending, timeout=POLL_S, return_when=FIRST_EXCEPTION)
                 for f in done:
-                    yield futures[f], f.result()  # re-raises a worker's error here, after cleanup
+                    try:
+                        result = f.result()  # re-raises a worker's error here, after cleanup
+                    except BrokenProcessPool:  # the pool saw a worker die before we did
+                        _check_alive(pool)
+                        raise WorkerDied("a worker process died") from None
+                    yield futures[f], result
+                _check_alive(pool)
         except BaseException:  # stop the workers now, not after their current task
             for process in list(pool._processes.values()):
                 process.kill()
             pool.shutdown(wait=True, cancel_futures=True)
             raise
+
+
+def _check_alive(pool: ProcessPoolExecutor) -> None:
+    for process in list(pool._processes.values()):  # the pool's own list: a live worker has no exit code
+        code = process.exitcode
+        if code is not None:
+            how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+            raise WorkerDied(f"worker process {process.pid} {how}")
+
+
+def _quiet_resource_tracker() -> None:
+    """The semaphores of a killed worker make multiprocessing's resource tracker warn about "leaked
+    semaphore objects" at exit; it cleans them up all the same. The tracker takes its warning
+    filters from sys.warnoptions when it starts, so they are set before it does."""
+    rule = "ignore:resource_tracker:UserWarning"
+    if rule not in sys.warnoptions:
+        sys.warnoptions.append(rule)
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
 
 
 def import_ray(flag: str = "--executor ray"):

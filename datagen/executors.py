@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from tqdm import tqdm
 
 from common.errors import SmspaceError
-from common.executors import in_processes, in_ray, ray_get, ray_session
+from common.executors import WorkerDied, in_processes, in_ray, ray_get, ray_session
 from datagen.parts import PartRecord, preflight, write_part
 from lake.manifest import GenConfig
 from lake.store import Store
@@ -78,4 +78,7 @@ def _run_local(tasks: list[Task], options: ExecutorOptions) -> Iterator[tuple[Ta
         for task in tasks:
             yield task, write_part(*task)
         return
-    yield from in_processes(write_part, tasks, options.workers)
+    try:
+        yield from in_processes(write_part, tasks, options.workers)
+    except WorkerDied as e:
+        raise WorkerDied(f"{e}; the parts already stored are kept: the same command completes the datasets") from None

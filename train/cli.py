@@ -136,7 +136,7 @@ def main() -> None:
 def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     """Train on DATASET (a folder or an id in the lake); prints the final metrics. Under torchrun,
     one run on all its processes (DDP); --batch-size is then the global batch."""
-    from train.distributed import STORE_ENV, all_ok, join_from_environment, leave
+    from train.distributed import PEER_LOST, STORE_ENV, PeerLost, all_ok, join_from_environment, leave
     from train.fit import fit as run_fit
     from train.fit import plan_fit
     from train.launch import launch_local
@@ -150,7 +150,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
             raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
         plan = plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, nproc)  # refused before any rank
         with _resume_hint(plan.where, nproc):
-            sys.exit(launch_local(nproc, [sys.executable, "-m", "train.cli", *sys.argv[1:]]))
+            sys.exit(launch_local(nproc, [sys.executable, "-m", "train.cli", *sys.argv[1:]], plan.where))
     world = int(os.environ.get("WORLD_SIZE", "1") or 1)
     plan = plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, world)  # the same on every rank
     ranks = join_from_environment(plan.cfg.device)  # under torchrun: this rank of the process group
@@ -164,6 +164,10 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
             raise problem or SmspaceError("rank 0 could not prepare the run folder (see its error)")
         with _resume_hint(plan.where, ranks.world) if ranks.primary else contextlib.nullcontext():
             result = run_fit(plan.cfg, run or RunDir(plan.where), resume=plan.resume, ranks=ranks)
+    except PeerLost:
+        if STORE_ENV in os.environ:  # under --nproc the launcher names the rank that died, in one line
+            sys.exit(PEER_LOST)
+        raise  # under torchrun this rank says it
     finally:
         leave(ranks)
     if ranks.primary:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
@@ -37,6 +39,30 @@ SINGLE = Ranks()
 
 
 STORE_ENV = "SMSPACE_DDP_STORE"  # host:port of the store `launch_local` hosts for its ranks
+PEER_LOST = 3  # a rank's exit code when it only lost contact with another one (launch_local names the cause)
+
+
+class PeerLost(SmspaceError):
+    """Another rank of the run stopped (killed, failed): this one cannot go on alone."""
+
+    exit_code = 1
+
+
+@contextmanager
+def peer_errors(ranks: Ranks) -> Iterator[None]:
+    """A collective that fails because another rank is gone (gloo: connection closed or reset)
+    becomes one line, instead of a backend traceback stored in the run's status."""
+    try:
+        yield
+    except SmspaceError:
+        raise
+    except (RuntimeError, dist.DistError) as e:
+        if not ranks.distributed:
+            raise
+        first = " ".join(str(e).split())[:160]
+        raise PeerLost(
+            f"rank {ranks.rank} lost another rank of this run ({first}); the run keeps its last checkpoint"
+        ) from None
 
 
 def join_from_environment(device: str) -> Ranks:

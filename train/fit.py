@@ -18,7 +18,7 @@ from torch.nn.parallel import DistributedDataParallel
 from common.errors import SmspaceError
 from lake.dataset import Dataset
 from train.config import TrainConfig, check_resources
-from train.distributed import SINGLE, Ranks, per_rank_batch, ranks_agree
+from train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch, ranks_agree
 from train.evaluation import N_PREDICTIONS, EvalData
 from train.loop import (
     TrainingFailed,
@@ -191,5 +191,6 @@ def _fit_claimed(cfg: TrainConfig, run: RunDir, resume: bool, ranks: Ranks, devi
         model, optimizer = build(cfg, manifest.n_motor, int(np.prod(manifest.sensor_shape)), device)
         learner = SingleLearner(model, optimizer, member.data, ranks)
         step = resume_members(learner, [member], device, ranks) if resume else 0
-        train(learner, [member], step, ranks=ranks, synced=lambda: ranks_agree(model, ranks))
+        with peer_errors(ranks):
+            train(learner, [member], step, ranks=ranks, synced=lambda: ranks_agree(model, ranks))
     return member.rows[-1] if ranks.primary else None

@@ -22,7 +22,7 @@ from functools import partial
 import torch.distributed as dist
 
 from common.cli import die_with_parent
-from train.distributed import STORE_ENV
+from train.distributed import PEER_LOST, STORE_ENV
 
 GRACE_S = 5.0  # a rank that failed waits this long for rank 0 to fail the same way and say why
 
@@ -45,10 +45,11 @@ def _store_on_loopback(nproc: int) -> tuple[dist.TCPStore, int]:
     return store, port
 
 
-def launch_local(nproc: int, argv: list[str]) -> int:
-    """Run `argv` as `nproc` ranks; returns 0, or the exit code of the first rank that failed (the
-    others are stopped). Rank 0 speaks (progress, result, its error); another rank's error is
-    shown, one line, only when rank 0 had none."""
+def launch_local(nproc: int, argv: list[str], where: str) -> int:
+    """Run `argv` as `nproc` ranks; returns 0, or the exit code of the rank whose failure stopped
+    the run (the others are stopped). Rank 0 speaks (progress, result, its own error); a rank that
+    only lost contact with another one exits quietly (PEER_LOST), and this launcher then names, in
+    one line, the rank that died and how to resume the run in `where`."""
     store, port = _store_on_loopback(nproc)
     env = {**os.environ, STORE_ENV: f"127.0.0.1:{port}", "WORLD_SIZE": str(nproc), "LOCAL_WORLD_SIZE": str(nproc)}
     env.setdefault("GLOO_SOCKET_IFNAME", "lo")
@@ -65,7 +66,7 @@ def launch_local(nproc: int, argv: list[str]) -> int:
             for r in range(nproc)
         ]
         try:
-            failed = _wait(procs)
+            exits = _wait(procs)
         except BaseException:  # Ctrl-C or SIGTERM here: the ranks stop too
             for p in procs:
                 p.send_signal(signal.SIGTERM)
@@ -74,10 +75,20 @@ def launch_local(nproc: int, argv: list[str]) -> int:
             raise
         finally:
             del store
-        if failed is None:
+        cause = _cause(exits)
+        if cause is None:
             return 0
-        rank, code = failed
-        if rank != 0 and procs[0].returncode in (0, -signal.SIGTERM, 130):
+        rank, code = cause
+        resume = f"smtrain fit --resume {where} --nproc {nproc}"
+        if code < 0:  # died by a signal: nothing of it could speak or record its end
+            name = signal.Signals(-code).name
+            line = (
+                f"rank {rank} (pid {procs[rank].pid}) was killed by {name}; the run keeps its last checkpoint: {resume}"
+            )
+            print(f"smtrain: error: {line}", file=sys.stderr)
+            _record_failure(where, line)
+            return 128 - code
+        if rank != 0 and procs[0].returncode in (0, PEER_LOST, -signal.SIGTERM, 130):
             errs[rank].seek(0)
             lines = [ln for ln in errs[rank].read().splitlines() if ln.strip()]
             print(
@@ -87,21 +98,41 @@ def launch_local(nproc: int, argv: list[str]) -> int:
         return code
 
 
-def _wait(procs: list[subprocess.Popen]) -> tuple[int, int] | None:
-    """Wait for every rank; on the first failure give rank 0 a moment, then stop the rest."""
-    first: tuple[int, int] | None = None
+def _wait(procs: list[subprocess.Popen]) -> list[tuple[int, int]]:
+    """Wait for every rank; (rank, exit code) in the order they ended. On the first failure give
+    rank 0 a moment to end the same way and say why, then stop the rest."""
+    exits: list[tuple[int, int]] = []
     deadline = None
-    while any(p.poll() is None for p in procs):
-        if first is None:
-            first = next(((r, p.returncode) for r, p in enumerate(procs) if p.returncode not in (None, 0)), None)
-            if first is not None:
-                deadline = time.monotonic() + GRACE_S
+    while len(exits) < len(procs):
+        for r, p in enumerate(procs):
+            if p.poll() is not None and r not in {e[0] for e in exits}:
+                exits.append((r, p.returncode))
+                if p.returncode != 0 and deadline is None:
+                    deadline = time.monotonic() + GRACE_S
         if deadline is not None and time.monotonic() > deadline:
             for p in procs:
                 if p.poll() is None:
                     p.send_signal(signal.SIGTERM)
-            deadline = None
-        time.sleep(0.1)
-    if first is None:
-        first = next(((r, p.returncode) for r, p in enumerate(procs) if p.returncode != 0), None)
-    return first
+            deadline = float("inf")
+        time.sleep(0.05)
+    return exits
+
+
+def _cause(exits: list[tuple[int, int]]) -> tuple[int, int] | None:
+    """The failure that stopped the run: the first one that is not only a lost contact (a rank
+    whose peer died) nor our own SIGTERM to the ranks left running."""
+    failures = [(r, c) for r, c in exits if c != 0]
+    own = [(r, c) for r, c in failures if c not in (PEER_LOST, -signal.SIGTERM, 130)]
+    return (own or failures or [None])[0]
+
+
+def _record_failure(where: str, line: str) -> None:
+    """The run's status, which a rank killed outright never wrote (best effort, within seconds)."""
+    from common.bounded import run_within
+    from train.run_dir import RunDir
+
+    def mark() -> None:
+        run = RunDir.open(where)
+        run.set_status("failed", run.status()["step"], line)
+
+    run_within([mark])

@@ -13,8 +13,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from common.bounded import run_within
 from common.errors import SmspaceError
-from common.executors import import_ray, in_processes, in_ray, ray_session
+from common.executors import WorkerDied, import_ray, in_processes, in_ray, ray_session
 from datagen.generate import generate
 from datagen.setups import get_setup
 from lake.catalog import check_lake
@@ -194,6 +195,17 @@ def train_chunk(paths: list[str], resume: bool, threads: int, progress: bool = F
     return len(runs)
 
 
+def _mark_stopped(runs: list[RunDir], line: str) -> None:
+    """The runs a dead worker (or its killed siblings) left "running" say why they stopped."""
+
+    def mark(run: RunDir) -> None:
+        status = RunDir.open(run.store).status()
+        if status["state"] in ("running", "stale"):
+            run.set_status("failed", status["step"], line)
+
+    run_within([lambda run=run: mark(run) for run in runs])
+
+
 def run_ensembles(
     chunks: list[tuple[list[RunDir], bool]], executor: str, workers: int, threads: int, device: str
 ) -> None:
@@ -210,8 +222,13 @@ def run_ensembles(
             run.release()
     tasks = [([str(run.path) for run in runs], resume, threads) for runs, resume in chunks]
     if executor == "local":
-        for _ in in_processes(train_chunk, tasks, workers):
-            pass
+        try:
+            for _ in in_processes(train_chunk, tasks, workers):
+                pass
+        except WorkerDied as e:
+            line = f"{e}; the runs keep their last checkpoints: the same command resumes them"
+            _mark_stopped([run for runs, _ in chunks for run in runs], line)
+            raise WorkerDied(line) from None
         return
     with ray_session(workers) as ray:
         # no retry: a task started again would not know how far it got; re-running the sweep resumes
