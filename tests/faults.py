@@ -10,6 +10,7 @@ reconnect for each request, which every S3 client does anyway.
 from __future__ import annotations
 
 import contextlib
+import os
 import socket
 import threading
 from collections.abc import Iterator
@@ -202,8 +203,12 @@ def _error_response(status: int) -> bytes:
 @contextlib.contextmanager
 def fault_proxy(env: dict[str, str]) -> Iterator[tuple[FaultProxy, dict[str, str]]]:
     """A proxy in front of the moto server of `env`, and the client environment that goes through it."""
+    from tests.servers import listeners
+
     upstream = int(env["AWS_ENDPOINT_URL"].rsplit(":", 1)[1])
     proxy = FaultProxy(upstream)
+    bound = [address for address, pid in listeners() if pid == os.getpid()]
+    assert bound and all(a == "127.0.0.1" for a in bound), bound  # the proxy (this process) on loopback only
     try:
         yield proxy, env | {"AWS_ENDPOINT_URL": proxy.endpoint}
     finally:
