@@ -44,16 +44,19 @@ def in_processes(fn: Callable, tasks: list[tuple], workers: int) -> Iterator[tup
         try:
             futures = {pool.submit(fn, *task): task for task in tasks}
             pending = set(futures)
+            seen: dict = {}  # every worker the pool started: it forgets them once it saw one die
             while pending:
+                seen.update(pool._processes or {})
                 done, pending = wait(pending, timeout=POLL_S, return_when=FIRST_EXCEPTION)
                 for f in done:
                     try:
                         result = f.result()  # re-raises a worker's error here, after cleanup
                     except BrokenProcessPool:  # the pool saw a worker die before we did
-                        _check_alive(pool)
-                        raise WorkerDied("a worker process died") from None
+                        raise _dead(seen) or WorkerDied("a worker process died") from None
                     yield futures[f], result
-                _check_alive(pool)
+                died = _dead(seen | (pool._processes or {}))
+                if died is not None:
+                    raise died
         except BaseException:  # stop the workers now, not after their current task
             for process in list(pool._processes.values()):
                 process.kill()
@@ -61,12 +64,14 @@ def in_processes(fn: Callable, tasks: list[tuple], workers: int) -> Iterator[tup
             raise
 
 
-def _check_alive(pool: ProcessPoolExecutor) -> None:
-    for process in list(pool._processes.values()):  # the pool's own list: a live worker has no exit code
+def _dead(workers: dict) -> WorkerDied | None:
+    """The first of the pool's workers that ended, named (a live worker has no exit code)."""
+    for process in list(workers.values()):
         code = process.exitcode
-        if code is not None:
+        if code is not None and code != 0:
             how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
-            raise WorkerDied(f"worker process {process.pid} {how}")
+            return WorkerDied(f"worker process {process.pid} {how}")
+    return None
 
 
 def _quiet_resource_tracker() -> None:

@@ -123,8 +123,12 @@ def test_shard_of_another_schema_version(lake_copy):
     result = smgen("validate", "--lake", lake_copy, "grid-seed3-MM")
     assert result.exit_code == 1
     assert "grid-seed3-MM/shard-00000.mcap" in result.output and "smspace.v2.TransitionBatch" in result.output
+    with pytest.raises(SmspaceError, match=r"shard-00000.mcap is not the file dataset grid-seed3-MM records"):
+        Dataset.open("grid-seed3-MM", lake_copy).read_all()  # readers refuse bytes the manifest does not record
+    from lake.shards import ShardReader
+
     with pytest.raises(SmspaceError, match=r"shard-00000.mcap has schema smspace.v2"):
-        Dataset.open("grid-seed3-MM", lake_copy).read_all()
+        ShardReader(shard)  # and a shard opened on its own says what it is
 
 
 def test_manifest_of_another_schema_version(lake_copy):
