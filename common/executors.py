@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -51,8 +52,8 @@ def in_processes(fn: Callable, tasks: list[tuple], workers: int) -> Iterator[tup
                 for f in done:
                     try:
                         result = f.result()  # re-raises a worker's error here, after cleanup
-                    except BrokenProcessPool:  # the pool saw a worker die before we did
-                        raise _dead(seen) or WorkerDied("a worker process died") from None
+                    except BrokenProcessPool:  # the pool saw a worker's pipe close before its exit was known
+                        raise _dead(seen, wait_s=2.0) or WorkerDied("a worker process died") from None
                     yield futures[f], result
                 died = _dead(seen | (pool._processes or {}))
                 if died is not None:
@@ -64,14 +65,19 @@ def in_processes(fn: Callable, tasks: list[tuple], workers: int) -> Iterator[tup
             raise
 
 
-def _dead(workers: dict) -> WorkerDied | None:
-    """The first of the pool's workers that ended, named (a live worker has no exit code)."""
-    for process in list(workers.values()):
-        code = process.exitcode
-        if code is not None and code != 0:
-            how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
-            return WorkerDied(f"worker process {process.pid} {how}")
-    return None
+def _dead(workers: dict, wait_s: float = 0.0) -> WorkerDied | None:
+    """The first of the pool's workers that ended, named (a live worker has no exit code); waits up
+    to `wait_s` for the exit of one that is still being torn down."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        for process in list(workers.values()):
+            code = process.exitcode
+            if code is not None and code != 0:
+                how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+                return WorkerDied(f"worker process {process.pid} {how}")
+        if time.monotonic() >= deadline:
+            return None
+        time.sleep(0.05)
 
 
 def _quiet_resource_tracker() -> None:
