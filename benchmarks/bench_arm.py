@@ -14,7 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from datagen.generate import generate
+from smspace.datagen.generate import generate
 
 
 def cpu_seconds() -> float:

@@ -14,11 +14,10 @@ import time
 
 import torch
 from bench_train import matmul_flops, step_flops
-
-from train.config import TrainConfig, default_encoder_layers
-from train.ensemble import EnsembleNet
-from train.fit import build
-from train.model import prediction_loss
+from smspace.train.config import TrainConfig, default_encoder_layers
+from smspace.train.ensemble import EnsembleNet
+from smspace.train.fit import build
+from smspace.train.model import prediction_loss
 
 
 def seconds_per_step(step, repeats: int, n: int) -> float:

@@ -13,8 +13,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from datagen.generate import generate
-from lake.dataset import Dataset
+from smspace.datagen.generate import generate
+from smspace.lake.dataset import Dataset
 
 
 def best_of(repeats: int, fn) -> float:

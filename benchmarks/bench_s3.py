@@ -19,11 +19,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from datagen.generate import generate
-from lake.dataset import Dataset
-from lake.store import open_store
+from smspace.datagen.generate import generate
+from smspace.lake.dataset import Dataset
+from smspace.lake.store import open_store
+from smspace.train.loader import TransitionStream
+
 from tests.servers import moto_s3
-from train.loader import TransitionStream
 
 
 def stream_rate(ds: Dataset, batch_size: int, epochs: int) -> tuple[float, int]:

@@ -13,13 +13,12 @@ import time
 from pathlib import Path
 
 import torch
-
-from datagen.generate import generate
-from lake.dataset import Dataset
-from train.config import TrainConfig, default_encoder_layers
-from train.fit import build
-from train.loader import TransitionStream
-from train.model import prediction_loss
+from smspace.datagen.generate import generate
+from smspace.lake.dataset import Dataset
+from smspace.train.config import TrainConfig, default_encoder_layers
+from smspace.train.fit import build
+from smspace.train.loader import TransitionStream
+from smspace.train.model import prediction_loss
 
 
 def matmul_flops(n: int = 1024, repeats: int = 5) -> float:

@@ -12,11 +12,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from common.rerun_output import ViewOutput
-from datagen.generate import generate
-from datagen.setups import get_setup
-from datagen.view import view_dataset
-from lake.dataset import Dataset
+from smspace.common.rerun_output import ViewOutput
+from smspace.datagen.generate import generate
+from smspace.datagen.setups import get_setup
+from smspace.datagen.view import view_dataset
+from smspace.lake.dataset import Dataset
 
 
 def main() -> None:

@@ -19,8 +19,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from common.cli import die_with_parent
-from common.errors import SmspaceError
+from smspace.common.cli import die_with_parent
+from smspace.common.errors import SmspaceError
 
 
 class WorkerDied(SmspaceError):
@@ -155,7 +155,7 @@ def _guard_local_ray() -> subprocess.Popen | None:
     if not pids:  # another Ray than the one this was written for: Ray's own cleanup is all there is
         return None
     guard = subprocess.Popen(
-        [sys.executable, "-m", "common.ray_guard"],
+        [sys.executable, "-m", "smspace.common.ray_guard"],
         stdin=subprocess.PIPE,
         start_new_session=True,  # neither Ctrl-C nor our process group's signals reach it
         cwd=Path(__file__).resolve().parents[1],

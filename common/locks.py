@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import IO
 
-from common.errors import SmspaceError
+from smspace.common.errors import SmspaceError
 
 
 class HeldLock:

@@ -19,9 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import click
-
-from common.cli import check_output, die_with_parent
-from common.errors import SmspaceError
+from smspace.common.cli import check_output, die_with_parent
+from smspace.common.errors import SmspaceError
 
 PARTIAL_SUFFIX = ".partial"  # the suffix of every temporary file smspace writes
 

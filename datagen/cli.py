@@ -7,8 +7,7 @@ import sys
 from pathlib import Path
 
 import click
-
-from common.cli import (
+from smspace.common.cli import (
     LAKE_OPTION,
     OneLineErrors,
     default_workers,
@@ -18,10 +17,10 @@ from common.cli import (
     friendly_errors,
     on_interrupt,
 )
-from common.errors import SmspaceError
-from common.rerun_output import view_options
-from datagen.setups import SETUPS
-from lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.common.errors import SmspaceError
+from smspace.common.rerun_output import view_options
+from smspace.datagen.setups import SETUPS
+from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
 
 
 @click.group(name="smgen", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
@@ -75,11 +74,11 @@ def generate(
     world_size,
 ) -> None:
     """Generate datasets (resumable: re-running completes what is missing)."""
-    from datagen.executors import ExecutorOptions
-    from datagen.generate import Share
-    from datagen.generate import generate as run
-    from datagen.setups import get_setup, parse_modes
-    from lake.dataset import open_lake
+    from smspace.datagen.executors import ExecutorOptions
+    from smspace.datagen.generate import Share
+    from smspace.datagen.generate import generate as run
+    from smspace.datagen.setups import get_setup, parse_modes
+    from smspace.lake.dataset import open_lake
 
     setup = get_setup(setup_name)
     if seed + worlds - 1 > SEED_MAX:
@@ -126,8 +125,8 @@ def _echo_committed(store, results) -> None:
 @friendly_errors
 def finalize(datasets, lake) -> None:
     """Commit datasets written by the ranks of a job array, once every part is present and valid."""
-    from datagen.generate import finalize as run
-    from lake.dataset import open_lake, resolve_dataset
+    from smspace.datagen.generate import finalize as run
+    from smspace.lake.dataset import open_lake, resolve_dataset
 
     store = open_lake(lake)
     _echo_committed(store, run(store, [resolve_dataset(ref, store) for ref in datasets]))
@@ -139,8 +138,8 @@ def finalize(datasets, lake) -> None:
 @friendly_errors
 def ls_(lake, as_json) -> None:
     """List the datasets of a lake (from its catalog)."""
-    from lake.catalog import read_catalog
-    from lake.dataset import open_lake
+    from smspace.lake.catalog import read_catalog
+    from smspace.lake.dataset import open_lake
 
     store = open_lake(lake)
     if store.is_file():
@@ -165,7 +164,7 @@ def ls_(lake, as_json) -> None:
 @friendly_errors
 def info(dataset, lake, as_json) -> None:
     """Describe one dataset (a folder or an id in the lake)."""
-    from lake.dataset import Dataset
+    from smspace.lake.dataset import Dataset
 
     ds = Dataset.open(dataset, lake)
     summary = ds.manifest.summary() | {"path": ds.url}
@@ -182,8 +181,8 @@ def info(dataset, lake, as_json) -> None:
 @friendly_errors
 def validate(datasets, lake) -> None:
     """Check CRCs, counts, sha256, schema, values and the mode invariant; exit 1 on any problem."""
-    from lake.dataset import resolve_dataset
-    from lake.validate import validate_dataset
+    from smspace.lake.dataset import resolve_dataset
+    from smspace.lake.validate import validate_dataset
 
     bad = False
     for ref in datasets:
@@ -208,8 +207,8 @@ def validate(datasets, lake) -> None:
 @friendly_errors
 def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
     """Write PNGs of a world: the room from above (arm) or the sensory table (grid), and sensor frames."""
-    from datagen.preview import preview_dataset, preview_world
-    from lake.dataset import Dataset
+    from smspace.datagen.preview import preview_dataset, preview_world
+    from smspace.lake.dataset import Dataset
 
     if (dataset is None) == (setup_name is None):
         raise SmspaceError("give either DATASET or --setup (with --seed)")
@@ -229,8 +228,8 @@ def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
 @friendly_errors
 def view(dataset, lake, limit, output) -> None:
     """Replay a dataset in rerun: frames, motors, egocentric positions, shift, room map, metadata."""
-    from datagen.view import view_dataset
-    from lake.dataset import Dataset
+    from smspace.datagen.view import view_dataset
+    from smspace.lake.dataset import Dataset
 
     ds = Dataset.open(dataset, lake)
     n = view_dataset(ds, limit, output)
@@ -248,8 +247,8 @@ def view(dataset, lake, limit, output) -> None:
 @friendly_errors
 def export(dataset, lake, fmt, out, limit, overwrite) -> None:
     """Export a dataset: per-transition MCAP with Foxglove schemas, or Parquet."""
-    from datagen.export import export as run
-    from lake.dataset import Dataset
+    from smspace.datagen.export import export as run
+    from smspace.lake.dataset import Dataset
 
     n = run(Dataset.open(dataset, lake), fmt, out, limit, overwrite)
     click.echo(f"{out}\t{n} transitions")

@@ -17,12 +17,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-
-from common.cli import check_output
-from common.errors import SmspaceError
-from lake.atomic import atomic_writer
-from lake.dataset import Dataset
-from lake.transitions import COLUMNS, Transitions
+from smspace.common.cli import check_output
+from smspace.common.errors import SmspaceError
+from smspace.lake.atomic import atomic_writer
+from smspace.lake.dataset import Dataset
+from smspace.lake.transitions import COLUMNS, Transitions
 
 EPOCH_NS = 1_575_763_200 * 10**9  # 2019-12-08T00:00:00Z, NeurIPS 2019
 STEP_NS = 10**6

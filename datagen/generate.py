@@ -16,15 +16,13 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
-
-import schemas
-from common.errors import SmspaceError
-from datagen.executors import ExecutorOptions, open_executor
-from datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
-from datagen.setups import get_setup
-from lake.catalog import check_lake, rebuild_catalog
-from lake.integrity import file_problem
-from lake.manifest import (
+from smspace.common.errors import SmspaceError
+from smspace.datagen.executors import ExecutorOptions, open_executor
+from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
+from smspace.datagen.setups import get_setup
+from smspace.lake.catalog import check_lake, rebuild_catalog
+from smspace.lake.integrity import file_problem
+from smspace.lake.manifest import (
     GENERATION,
     MANIFEST,
     MAX_SHARD_SIZE,
@@ -34,7 +32,9 @@ from lake.manifest import (
     Manifest,
     load_manifest,
 )
-from lake.store import Store
+from smspace.lake.store import Store
+
+from smspace import schemas
 
 LOCKS = ".locks"  # lake/.locks/<dataset id>.lock: held while that dataset is generated (local lakes)
 
@@ -280,6 +280,9 @@ def finalize(lake: Store | str, folders: list[Store]) -> list[tuple[Manifest, bo
             raw = json.loads(folder.read_bytes(GENERATION))
             cfg = GenConfig.from_record(raw["config"], f"{folder}/{GENERATION}")
         except FileNotFoundError:
+            if folder.exists(MANIFEST):  # another finalize committed it (and removed the record) meanwhile
+                ready.append((folder, None, None))
+                continue
             raise SmspaceError(f"{folder} has no generation to finalize (no {GENERATION})") from None
         except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError) as e:
             raise SmspaceError(f"{folder}/{GENERATION} is unreadable ({type(e).__name__}: {e})") from None

@@ -15,12 +15,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
-from common.errors import SmspaceError
-from datagen.setups import MODES, World, draw_transitions, get_setup
-from lake.manifest import REGULAR_FILE, GenConfig, shard_name
-from lake.shards import Block, ShardReader, regular_sampling_bytes, shard_bytes
-from lake.store import Store
+from smspace.common.errors import SmspaceError
+from smspace.datagen.setups import MODES, World, draw_transitions, get_setup
+from smspace.lake.manifest import REGULAR_FILE, GenConfig, shard_name
+from smspace.lake.shards import Block, ShardReader, regular_sampling_bytes, shard_bytes
+from smspace.lake.store import Store
 
 REGULAR = -1  # the part number of the regular-sampling file; shards are 0 .. n_shards - 1
 _WORLDS: dict[tuple[str, int], World] = {}

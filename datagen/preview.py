@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from datagen.parts import world_for
-from datagen.setups import get_setup
-from lake.dataset import Dataset
+from smspace.datagen.parts import world_for
+from smspace.datagen.setups import get_setup
+from smspace.lake.dataset import Dataset
 
 FRAMES_SEED_KEY = 2  # spawn key of the random positions shown when previewing a world without a dataset
 

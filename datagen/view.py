@@ -5,11 +5,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
-
-from common.rerun_output import ViewOutput, recording
-from datagen.parts import world_for
-from datagen.setups import get_setup
-from lake.dataset import Dataset
+from smspace.common.rerun_output import ViewOutput, recording
+from smspace.datagen.parts import world_for
+from smspace.datagen.setups import get_setup
+from smspace.lake.dataset import Dataset
 
 BLUE, ORANGE, GREY = (40, 110, 230), (240, 140, 20), (150, 150, 150)  # t, t+1, reachable
 

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-from common.errors import SmspaceError
+from smspace.common.errors import SmspaceError
 
 PARTIAL_SUFFIX = ".partial"
 

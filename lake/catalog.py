@@ -14,11 +14,10 @@ from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
-
-from common.cli import display_name
-from common.errors import SmspaceError
-from lake.manifest import MANIFEST, Manifest, load_manifest
-from lake.store import Store, open_store
+from smspace.common.cli import display_name
+from smspace.common.errors import SmspaceError
+from smspace.lake.manifest import MANIFEST, Manifest, load_manifest
+from smspace.lake.store import Store, open_store
 
 CATALOG = "catalog.parquet"
 SOURCES_KEY = b"smspace.manifests"  # Parquet metadata: {"versions": {id: manifest version}, "broken": [id…]}

@@ -7,13 +7,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-
-from common.errors import SmspaceError
-from lake.integrity import check_file
-from lake.manifest import GENERATION, MANIFEST, Manifest, load_manifest
-from lake.shards import Block, ShardReader
-from lake.store import LocalStore, Store, is_url, open_store
-from lake.transitions import Transitions
+from smspace.common.errors import SmspaceError
+from smspace.lake.integrity import check_file
+from smspace.lake.manifest import GENERATION, MANIFEST, Manifest, load_manifest
+from smspace.lake.shards import Block, ShardReader
+from smspace.lake.store import LocalStore, Store, is_url, open_store
+from smspace.lake.transitions import Transitions
 
 DEFAULT_LAKE = "data/lake"
 

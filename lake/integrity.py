@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from common.errors import DatasetCorrupt
-from lake.store import Store
+from smspace.common.errors import DatasetCorrupt
+from smspace.lake.store import Store
 
 
 def file_problem(store: Store, entry: dict[str, Any]) -> str | None:

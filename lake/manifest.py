@@ -11,9 +11,10 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import schemas
-from common.errors import DatasetCorrupt, SmspaceError
-from lake.store import LocalStore, Store
+from smspace.common.errors import DatasetCorrupt, SmspaceError
+from smspace.lake.store import LocalStore, Store
+
+from smspace import schemas
 
 MANIFEST = "manifest.json"
 GENERATION = "generation.json"  # present only while a generation is unfinished
@@ -170,7 +171,7 @@ class Manifest:
 def load_manifest(folder: Path | Store, data: bytes | None = None) -> Manifest:
     """The manifest of a dataset folder, every field checked (types, names, hashes, statistics);
     `data`: its bytes when the caller already fetched them (a lake listing)."""
-    from lake.manifest_check import check_manifest
+    from smspace.lake.manifest_check import check_manifest
 
     if not isinstance(folder, Store):
         folder = LocalStore(folder)

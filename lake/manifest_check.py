@@ -7,8 +7,8 @@ import math
 import re
 from typing import Any
 
-from lake.manifest import MAX_FILE_BYTES, MAX_REGULAR, REGULAR_FILE, SEED_MAX, SHARD_FILE, GenConfig, shard_name
-from lake.transitions import MODES
+from smspace.lake.manifest import MAX_FILE_BYTES, MAX_REGULAR, REGULAR_FILE, SEED_MAX, SHARD_FILE, GenConfig, shard_name
+from smspace.lake.transitions import MODES
 
 DTYPES = ("float32", "uint8")
 MAX_SENSOR = 1 << 24  # sensor components (768 for a 16x16 RGB camera)

@@ -22,9 +22,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from common.errors import DatasetCorrupt, SmspaceError
-from common.locks import hold_lock
-from lake.atomic import create_exclusive, remove_partials, sha256_file, write_atomic
+from smspace.common.errors import DatasetCorrupt, SmspaceError
+from smspace.common.locks import hold_lock
+from smspace.lake.atomic import create_exclusive, remove_partials, sha256_file, write_atomic
 
 LOCAL_SCHEMES = ("", "file")
 READ_BLOCK = 1 << 16  # the summary of a shard comes down in one or two requests of this size
@@ -506,7 +506,7 @@ def open_store(ref: str | Path) -> Store:
 
     try:
         if scheme in ("s3", "s3a"):
-            from lake.s3 import BoundedS3FileSystem  # needs s3fs: the [s3] extra
+            from smspace.lake.s3 import BoundedS3FileSystem  # needs s3fs: the [s3] extra
 
             fs = BoundedS3FileSystem(skip_instance_cache=True, **s3_options())
             root = fs._strip_protocol(ref)

@@ -6,12 +6,12 @@ import hashlib
 from pathlib import Path
 
 import numpy as np
+from smspace.common.errors import SmspaceError
+from smspace.lake.manifest import load_manifest
+from smspace.lake.shards import ShardReader
+from smspace.lake.store import Store, open_store
 
-import schemas
-from common.errors import SmspaceError
-from lake.manifest import load_manifest
-from lake.shards import ShardReader
-from lake.store import Store, open_store
+from smspace import schemas
 
 
 class _ModeCheck:

@@ -1,6 +1,6 @@
 """Protobuf schemas of the smspace data lake. `transitions.proto` is the source of truth."""
 
-from schemas import transitions_pb2
+from smspace.schemas import transitions_pb2
 
 SCHEMA_VERSION = 1
 PACKAGE = "smspace.v1"

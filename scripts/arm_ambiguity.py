@@ -18,10 +18,9 @@ import re
 from pathlib import Path
 
 import numpy as np
-
-from datagen.generate import generate
-from lake.dataset import Dataset
-from metrics.spatial import spatial_scores
+from smspace.datagen.generate import generate
+from smspace.lake.dataset import Dataset
+from smspace.metrics.spatial import spatial_scores
 
 K, FAR = 5, 0.5  # image neighbours per view; a camera distance that is not a neighbour (room units)
 GRAPH_K = 8  # neighbours per view in the graph of image similarity

@@ -16,7 +16,7 @@ BIN = Path(sys.executable).parent
 
 
 def smgen(*args: str):
-    from datagen.cli import main
+    from smspace.datagen.cli import main
 
     return CliRunner().invoke(main, [str(a) for a in args], prog_name="smgen")
 

@@ -8,9 +8,8 @@ import subprocess
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
-from datagen.setups.arm import ArmWorld, planar_fk
-from lake.dataset import Dataset
+from smspace.datagen.setups.arm import ArmWorld, planar_fk
+from smspace.lake.dataset import Dataset
 
 from .conftest import BIN, smgen
 
@@ -168,8 +167,8 @@ def test_preview_writes_pictures_of_a_world_and_of_a_dataset(tmp_path):
 
 
 def test_training_on_images(tmp_path):
-    from train.cli import main as smtrain_main
-    from train.run_dir import RunDir
+    from smspace.train.cli import main as smtrain_main
+    from smspace.train.run_dir import RunDir
 
     from .conftest import SAMPLES
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
+from smspace.common.errors import SmspaceError
+from smspace.lake.dataset import Dataset
 
-import schemas
-from common.errors import SmspaceError
-from lake.dataset import Dataset
+from smspace import schemas
 
 from .conftest import smgen
 
@@ -125,7 +125,7 @@ def test_shard_of_another_schema_version(lake_copy):
     assert "grid-seed3-MM/shard-00000.mcap" in result.output and "smspace.v2.TransitionBatch" in result.output
     with pytest.raises(SmspaceError, match=r"shard-00000.mcap is not the file dataset grid-seed3-MM records"):
         Dataset.open("grid-seed3-MM", lake_copy).read_all()  # readers refuse bytes the manifest does not record
-    from lake.shards import ShardReader
+    from smspace.lake.shards import ShardReader
 
     with pytest.raises(SmspaceError, match=r"shard-00000.mcap has schema smspace.v2"):
         ShardReader(shard)  # and a shard opened on its own says what it is
@@ -145,7 +145,7 @@ def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):
     import builtins
     import io
 
-    import lake.atomic as atomic
+    import smspace.lake.atomic as atomic
 
     class FillsUp(io.FileIO):
         def write(self, data):  # half the shard reaches the disk, then the disk is full

@@ -9,10 +9,10 @@ import subprocess
 import time
 
 import pytest
+from smspace.train.run_dir import RunDir
 
 from tests.conftest import BIN, SAMPLES
 from tests.servers import assert_loopback_only, stop_group, tree
-from train.run_dir import RunDir
 
 pytestmark = pytest.mark.slow
 DATASET = SAMPLES / "grid-seed0-MEM"

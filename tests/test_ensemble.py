@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
-
-from train.cli import main as smtrain_main
-from train.config import TrainConfig
-from train.ensemble import train_ensemble
-from train.fit import fit
-from train.run_dir import RunDir
+from smspace.train.cli import main as smtrain_main
+from smspace.train.config import TrainConfig
+from smspace.train.ensemble import train_ensemble
+from smspace.train.fit import fit
+from smspace.train.run_dir import RunDir
 
 from .conftest import SAMPLES
 from .numerics import assert_same_trajectory, assert_same_weights, relative_distance
@@ -58,8 +57,8 @@ def test_a_run_inside_an_ensemble_is_the_run_trained_alone(tmp_path):
 @pytest.mark.numerical
 def test_an_ensemble_starts_from_the_lone_runs_weights_and_repeats_bit_for_bit(tmp_path):
     """Exact where the computation is the same: the initial weights, and the same ensemble re-run."""
-    from train.ensemble import EnsembleNet
-    from train.fit import build
+    from smspace.train.ensemble import EnsembleNet
+    from smspace.train.fit import build
 
     cfgs = [config("MEM", 11, steps=20), config("MME", 13, steps=20)]
     net = EnsembleNet(2, 3, 4, 3, [150, 100, 50], [200, 150, 100])
@@ -237,7 +236,7 @@ def test_a_run_does_not_depend_on_how_a_sweep_groups_or_places_it(tmp_path):
 def test_report_keeps_studies_apart_and_projects_wide_h(tmp_path):
     """Runs of two N_h are two studies: separate curves and rows, never one mean; h of N_h > 3 is
     drawn as its first three principal components."""
-    from train.report import first_three
+    from smspace.train.report import first_three
 
     runs = []
     for n_h in (3, 5):

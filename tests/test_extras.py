@@ -10,7 +10,7 @@ from tests.conftest import smgen
 WITHOUT = """
 import sys
 sys.modules[{module!r}] = None  # as if the extra were not installed
-from datagen.cli import main
+from smspace.datagen.cli import main
 sys.argv = ["smgen", *{args!r}]
 main()
 """

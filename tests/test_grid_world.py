@@ -5,9 +5,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-from datagen.setups import draw_transitions
-from datagen.setups.grid import GridWorld, sensory_table
+from smspace.datagen.setups import draw_transitions
+from smspace.datagen.setups.grid import GridWorld, sensory_table
 
 
 def test_motor_to_position_mapping_is_spec_2_1():

@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
-
-from train.cli import main as smtrain_main
-from train.run_dir import RunDir
+from smspace.train.cli import main as smtrain_main
+from smspace.train.run_dir import RunDir
 
 from .conftest import BIN, SAMPLES, smgen
 
@@ -320,12 +319,13 @@ def test_view_save_is_atomic_and_refuses_to_overwrite(samples_copy, tmp_path, mo
     first = out.read_bytes()
     result = smgen(*args)
     assert result.exit_code == 2 and "--overwrite" in result.output and out.read_bytes() == first
-    import datagen.view
 
     def full_disk(*a, **k):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(datagen.view, "_series", full_disk)  # fails midway through logging
+    import smspace.datagen.view as dataset_view
+
+    monkeypatch.setattr(dataset_view, "_series", full_disk)  # fails midway through logging
     result = smgen(*args, "--overwrite")
     assert result.exit_code != 0
     assert out.read_bytes() == first and not list(tmp_path.glob("*.partial"))
@@ -420,7 +420,7 @@ def test_extreme_generation_options_get_one_line_and_write_nothing(tmp_path):
 def test_the_disk_estimate_counts_only_missing_shards(tmp_path, monkeypatch):
     import shutil as sh
 
-    import lake.store as lake_store
+    import smspace.lake.store as lake_store
 
     lake = tmp_path / "lake"
     args = ["generate", "--setup", "grid", "--mode", "MM", "--transitions", 200000, "--shard-size", 50000]

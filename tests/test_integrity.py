@@ -9,11 +9,10 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
-from lake.shards import Block, ShardReader, shard_bytes
-from lake.store import LocalStore
-from lake.transitions import Transitions
-from train.cli import main as smtrain_main
+from smspace.lake.shards import Block, ShardReader, shard_bytes
+from smspace.lake.store import LocalStore
+from smspace.lake.transitions import Transitions
+from smspace.train.cli import main as smtrain_main
 
 from .conftest import SAMPLES, smgen
 

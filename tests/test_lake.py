@@ -12,12 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
-
-from datagen.parts import shard_rng, world_for
-from datagen.setups import draw_transitions
-from lake.dataset import Dataset
-from lake.manifest import GenConfig
-from lake.shards import ShardReader
+from smspace.datagen.parts import shard_rng, world_for
+from smspace.datagen.setups import draw_transitions
+from smspace.lake.dataset import Dataset
+from smspace.lake.manifest import GenConfig
+from smspace.lake.shards import ShardReader
 
 from .conftest import BIN, smgen
 
@@ -219,7 +218,7 @@ def test_worlds_derive_their_seeds(tmp_path):
 
 
 def test_python_dash_m_entry_point():
-    proc = subprocess.run([sys.executable, "-m", "datagen.cli", "--help"], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "smspace.datagen.cli", "--help"], capture_output=True, text=True)
     assert proc.returncode == 0 and "generate" in proc.stdout
 
 
@@ -230,7 +229,7 @@ def test_a_repair_racing_a_listing_never_hides_a_complete_dataset(grid_lake, tmp
     import os
     import shutil
 
-    import lake.catalog as catalog
+    import smspace.lake.catalog as catalog
 
     lake = tmp_path / "lake"
     shutil.copytree(grid_lake, lake)

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from smspace.lake.dataset import Dataset
+from smspace.lake.normalise import normalisers
+from smspace.train.loader import TransitionStream
 from torch.utils.data import DataLoader
-
-from lake.dataset import Dataset
-from lake.normalise import normalisers
-from train.loader import TransitionStream
 
 from .conftest import SAMPLES
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-import metrics.spatial as spatial
-from datagen.setups.grid import GridWorld
-from metrics import affine_projection, spatial_scores
+import smspace.metrics.spatial as spatial
+from smspace.datagen.setups.grid import GridWorld
+from smspace.metrics import affine_projection, spatial_scores
 
 pytestmark = pytest.mark.numerical  # float64 blockwise sums against a brute force: any CPU kind
 

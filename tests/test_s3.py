@@ -193,9 +193,9 @@ def test_the_commit_is_create_only_on_s3(s3, monkeypatch):
     """Two commits of one dataset: the second finds the first and keeps it (nothing overwritten)."""
     for key, value in s3.items():
         monkeypatch.setenv(key, value)
-    from datagen.generate import commit_dataset, generate, plan_dataset
-    from lake.manifest import GenConfig
-    from lake.store import open_store
+    from smspace.datagen.generate import commit_dataset, generate, plan_dataset
+    from smspace.lake.manifest import GenConfig
+    from smspace.lake.store import open_store
 
     lake = open_store("s3://lake/commit")
     ((manifest, written),) = generate(lake, "grid", ["MEM"], [9], 3000, 1000)
@@ -341,8 +341,9 @@ def test_a_ray_sweep_writes_its_run_folders_to_s3(s3, tmp_path):
 def test_a_forged_object_on_s3_is_never_trained_on_and_intact_ones_cost_one_head(s3, tmp_path, monkeypatch):
     """The ETag of a single PUT is the MD5 the manifest records: an intact shard is trusted on one
     metadata request (never downloaded whole to hash it), a forged one of the same size is refused."""
-    from lake.dataset import Dataset
-    from lake.store import RemoteStore
+    from smspace.lake.dataset import Dataset
+    from smspace.lake.store import RemoteStore
+
     from tests.test_integrity import SHARD, forged
 
     lake = "s3://lake/forged"

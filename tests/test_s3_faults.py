@@ -155,8 +155,8 @@ def test_two_finalizes_at_once_one_commits_the_other_finds_it(proxy, tmp_path):
 def test_a_finalize_that_meets_a_stale_listing_reads_the_committed_manifest(s3, monkeypatch):
     for key, value in s3.items():
         monkeypatch.setenv(key, value)
-    from datagen.generate import Share, finalize, generate
-    from lake.store import open_store
+    from smspace.datagen.generate import Share, finalize, generate
+    from smspace.lake.store import open_store
 
     lake = open_store("s3://lake/stale")
     for rank in (0, 1):
@@ -213,8 +213,7 @@ def test_resume_refuses_a_folder_holding_parts_of_two_runs(s3, tmp_path, monkeyp
     for key, value in s3.items():
         monkeypatch.setenv(key, value)
     from click.testing import CliRunner
-
-    from train.cli import main
+    from smspace.train.cli import main
 
     lake, out = "s3://lake/mixed", "s3://lake/mixed-run"
     assert (

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import schemas
-from schemas.build import HERE, generate
+from smspace.schemas.build import HERE, generate
+
+from smspace import schemas
 
 
 def test_generated_module_matches_the_proto(tmp_path):

@@ -6,9 +6,8 @@ from __future__ import annotations
 import json
 
 from click.testing import CliRunner
-
-from train.cli import main as smtrain_main
-from train.run_dir import RunDir
+from smspace.train.cli import main as smtrain_main
+from smspace.train.run_dir import RunDir
 
 from .conftest import SAMPLES
 

@@ -16,10 +16,9 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
-
-from metrics import spatial_scores
-from train.cli import main as smtrain_main
-from train.run_dir import RunDir
+from smspace.metrics import spatial_scores
+from smspace.train.cli import main as smtrain_main
+from smspace.train.run_dir import RunDir
 
 from .conftest import BIN, SAMPLES
 
@@ -70,8 +69,8 @@ def test_short_run_learns_and_writes_a_complete_run_folder(tmp_path):
 
 
 def test_model_defaults_are_the_paper_s(tmp_path):
-    from train.config import TrainConfig, default_encoder_layers
-    from train.fit import build
+    from smspace.train.config import TrainConfig, default_encoder_layers
+    from smspace.train.fit import build
 
     def paper(setup: str) -> TrainConfig:
         return TrainConfig(dataset="x", encoder_layers=list(default_encoder_layers(setup)))
@@ -91,7 +90,7 @@ def test_model_defaults_are_the_paper_s(tmp_path):
 
 
 def test_learning_rate_schedule():
-    from train.config import TrainConfig, learning_rate
+    from smspace.train.config import TrainConfig, learning_rate
 
     cfg = TrainConfig(dataset="x")
     assert cfg.lr_decay_steps == 80_000
@@ -168,7 +167,7 @@ def test_unsupported_schema_version(tmp_path):
 def test_corrupt_shard_met_during_training_keeps_the_last_checkpoint(tmp_path, monkeypatch):
     """A shard damaged while a run trains (after fit checked the dataset) is met when its reader
     opens it: the run stops in one line, keeping its last checkpoint."""
-    from lake.dataset import Dataset
+    from smspace.lake.dataset import Dataset
 
     from .conftest import smgen
 
@@ -292,7 +291,7 @@ def test_sweep_modes_all_is_every_mode(tmp_path):
 def test_a_ray_sweep_without_ray_says_so_before_generating(tmp_path):
     code = (
         "import sys; sys.modules['ray'] = None\n"  # as if the cluster extra were not installed
-        "from train.cli import main\n"
+        "from smspace.train.cli import main\n"
         f"sys.argv = ['smtrain', 'sweep', '--setup', 'grid', '--worlds', '1', '--executor', 'ray', "
         f"'--lake', {str(tmp_path / 'lake')!r}, '--out', {str(tmp_path / 'runs')!r}]\n"
         "main()\n"
@@ -355,9 +354,9 @@ def test_ctrl_c_of_a_sweep_says_the_same_command_resumes_it(tmp_path):
 
 
 def test_a_run_resumed_from_its_step_0_checkpoint_records_step_0_once(tmp_path, monkeypatch):
-    from train.config import TrainConfig
-    from train.fit import SingleLearner
-    from train.fit import fit as run_fit
+    from smspace.train.config import TrainConfig
+    from smspace.train.fit import SingleLearner
+    from smspace.train.fit import fit as run_fit
 
     ds = SAMPLES / "grid-seed0-MM"
     cfg = TrainConfig(dataset=str(ds), dataset_id=ds.name, steps=200, eval_every=100, seed=3)

@@ -14,9 +14,8 @@ from collections import Counter
 import numpy as np
 import psutil
 import pytest
-
-from datagen.export import read_parquet_transitions
-from lake.dataset import Dataset
+from smspace.datagen.export import read_parquet_transitions
+from smspace.lake.dataset import Dataset
 
 from .conftest import BIN, SAMPLES, smgen
 
@@ -82,8 +81,7 @@ def test_smgen_view_arm_dataset_has_images_and_a_room_map(tmp_path):
 
 def test_smtrain_view_run(tmp_path):
     from click.testing import CliRunner
-
-    from train.cli import main as smtrain_main
+    from smspace.train.cli import main as smtrain_main
 
     run = tmp_path / "run"
     r = CliRunner().invoke(

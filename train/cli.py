@@ -13,8 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
-
-from common.cli import (
+from smspace.common.cli import (
     LAKE_OPTION,
     OneLineErrors,
     display_name,
@@ -23,13 +22,13 @@ from common.cli import (
     friendly_errors,
     on_interrupt,
 )
-from common.errors import Interrupted, SmspaceError
-from common.rerun_output import view_options
-from lake.manifest import MAX_WORLDS, SEED_MAX
-from train.config import MAX_LAYERS, MAX_WIDTH
+from smspace.common.errors import Interrupted, SmspaceError
+from smspace.common.rerun_output import view_options
+from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.train.config import MAX_LAYERS, MAX_WIDTH
 
 if TYPE_CHECKING:
-    from train.config import TrainConfig
+    from smspace.train.config import TrainConfig
 
 RUNS = "runs"  # a folder or an fsspec URL (s3://bucket/runs)
 
@@ -72,7 +71,7 @@ def _flag_name(f: Field) -> str:
 
 def config_options(exclude: tuple[str, ...] = ()) -> Callable:
     """One click option per TrainConfig flag field: names, defaults and help come from the config."""
-    from train.config import flag_fields
+    from smspace.train.config import flag_fields
 
     def decorate(fn: Callable) -> Callable:
         for f in reversed(flag_fields()):
@@ -101,7 +100,7 @@ def config_options(exclude: tuple[str, ...] = ()) -> Callable:
 
 def config_from_flags(flags: dict) -> TrainConfig:
     """A TrainConfig from parsed flags; flags left out (or layer lists not given) keep the config's defaults."""
-    from train.config import TrainConfig, flag_fields
+    from smspace.train.config import TrainConfig, flag_fields
 
     given = {f.name: flags[f.name] for f in flag_fields() if flags.get(f.name) is not None}
     return TrainConfig(dataset="", **given)
@@ -136,11 +135,11 @@ def main() -> None:
 def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     """Train on DATASET (a folder or an id in the lake); prints the final metrics. Under torchrun,
     one run on all its processes (DDP); --batch-size is then the global batch."""
-    from train.distributed import PEER_LOST, STORE_ENV, PeerLost, all_ok, join_from_environment, leave
-    from train.fit import fit as run_fit
-    from train.fit import plan_fit
-    from train.launch import launch_local
-    from train.run_dir import RunDir
+    from smspace.train.distributed import PEER_LOST, STORE_ENV, PeerLost, all_ok, join_from_environment, leave
+    from smspace.train.fit import fit as run_fit
+    from smspace.train.fit import plan_fit
+    from smspace.train.launch import launch_local
+    from smspace.train.run_dir import RunDir
 
     ctx = click.get_current_context()
     given = [_flag_name(f) for f in _flag_fields() if _on_command_line(ctx, f.name)]
@@ -150,7 +149,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
             raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
         plan = plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, nproc)  # refused before any rank
         with _resume_hint(plan.where, nproc):
-            sys.exit(launch_local(nproc, [sys.executable, "-m", "train.cli", *sys.argv[1:]], plan.where))
+            sys.exit(launch_local(nproc, [sys.executable, "-m", "smspace.train.cli", *sys.argv[1:]], plan.where))
     world = int(os.environ.get("WORLD_SIZE", "1") or 1)
     plan = plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, world)  # the same on every rank
     ranks = join_from_environment(plan.cfg.device)  # under torchrun: this rank of the process group
@@ -181,8 +180,8 @@ def _resume_hint(where: str, world: int):
     try:
         yield
     except KeyboardInterrupt:
-        from common.bounded import run_within
-        from train.run_dir import RunDir
+        from smspace.common.bounded import run_within
+        from smspace.train.run_dir import RunDir
 
         steps: list[int] = []  # the step of the last evaluation, hence of the checkpoint (if the storage answers)
         run_within([lambda: steps.append(RunDir.open(where).status()["step"])])
@@ -192,7 +191,7 @@ def _resume_hint(where: str, world: int):
 
 
 def _flag_fields():
-    from train.config import flag_fields
+    from smspace.train.config import flag_fields
 
     return flag_fields()
 
@@ -260,11 +259,11 @@ def sweep(
     **flags,
 ) -> None:
     """Generate missing datasets, then train every (world, mode) run as vectorised ensembles."""
-    from common.cli import default_workers
-    from datagen.setups import get_setup, parse_modes
-    from lake.dataset import open_lake
-    from train.fit import resolve_device
-    from train.sweep import sweep as run_sweep
+    from smspace.common.cli import default_workers
+    from smspace.datagen.setups import get_setup, parse_modes
+    from smspace.lake.dataset import open_lake
+    from smspace.train.fit import resolve_device
+    from smspace.train.sweep import sweep as run_sweep
 
     get_setup(setup_name)
     mode_list = parse_modes(modes)
@@ -301,7 +300,7 @@ def sweep(
 @friendly_errors
 def report(runs, out) -> None:
     """Draw the paper's figures and the table of final values from run folders."""
-    from train.report import report as run_report
+    from smspace.train.report import report as run_report
 
     written, notices = run_report(list(runs), out)
     for line in notices:
@@ -321,7 +320,7 @@ def _listed(path: Path) -> dict:
 
 
 def _run_summary(path: Path) -> dict:
-    from train.run_dir import RunDir
+    from smspace.train.run_dir import RunDir
 
     run = RunDir.open(path)
     cfg = run.config
@@ -355,12 +354,12 @@ def _leaf(where: str) -> str:
 @friendly_errors
 def ls_(runs, as_json) -> None:
     """List the runs under a folder."""
-    from train.run_dir import CONFIG
+    from smspace.train.run_dir import CONFIG
 
     def fmt(v) -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
 
-    from lake.store import open_store
+    from smspace.lake.store import open_store
 
     folder = open_store(runs)
     if not folder.is_folder():  # a mistyped name must not look like a folder without runs
@@ -382,7 +381,7 @@ def ls_(runs, as_json) -> None:
 @friendly_errors
 def info(run, as_json) -> None:
     """Describe one run: config, state, last metrics."""
-    from train.run_dir import RunDir
+    from smspace.train.run_dir import RunDir
 
     summary = _run_summary(run) | {"config": RunDir.open(run).config.to_dict()}
     if as_json:
@@ -400,8 +399,8 @@ def info(run, as_json) -> None:
 @friendly_errors
 def view(run, output) -> None:
     """Replay a run in rerun: h coloured by p, the affine projection, curves, predictions."""
-    from train.run_dir import RunDir
-    from train.view import view_run
+    from smspace.train.run_dir import RunDir
+    from smspace.train.view import view_run
 
     n = view_run(RunDir.open(run), output)
     if output.save:

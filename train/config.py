@@ -12,10 +12,10 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from common.errors import SmspaceError
-from lake.dataset import canonical
-from lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
-from lake.store import Store, open_store
+from smspace.common.errors import SmspaceError
+from smspace.lake.dataset import canonical
+from smspace.lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
+from smspace.lake.store import Store, open_store
 
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
@@ -110,7 +110,7 @@ class TrainConfig:
 
 
 def default_encoder_layers(setup: str) -> tuple[int, ...]:
-    from datagen.setups import get_setup  # the setup owns its body and so the paper's encoder for it
+    from smspace.datagen.setups import get_setup  # the setup owns its body and so the paper's encoder for it
 
     return get_setup(setup).encoder_layers
 

@@ -16,8 +16,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.distributed as dist
-
-from common.errors import SmspaceError
+from smspace.common.errors import SmspaceError
 
 
 @dataclass(frozen=True)

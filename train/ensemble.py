@@ -12,14 +12,13 @@ from typing import Any
 
 import numpy as np
 import torch
+from smspace.common.errors import SmspaceError
+from smspace.train.config import TrainConfig, check_resources
+from smspace.train.evaluation import N_PREDICTIONS, EvalData
+from smspace.train.fit import build
+from smspace.train.loop import open_member, recorded_outcome, resolve_device, resume_members, train
+from smspace.train.run_dir import RunDir
 from torch import nn
-
-from common.errors import SmspaceError
-from train.config import TrainConfig, check_resources
-from train.evaluation import N_PREDICTIONS, EvalData
-from train.fit import build
-from train.loop import open_member, recorded_outcome, resolve_device, resume_members, train
-from train.run_dir import RunDir
 
 
 class EnsembleMLP(nn.Module):

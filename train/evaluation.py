@@ -7,11 +7,10 @@ from typing import Any
 
 import numpy as np
 import torch
-
-from lake.dataset import Dataset
-from lake.normalise import normalisers
-from metrics import spatial_scores
-from train.run_dir import PREDICTED, TRUE, RunDir
+from smspace.lake.dataset import Dataset
+from smspace.lake.normalise import normalisers
+from smspace.metrics import spatial_scores
+from smspace.train.run_dir import PREDICTED, TRUE, RunDir
 
 N_PREDICTIONS = 16  # predicted vs true s_t1 kept per evaluation, for viewers and reports
 

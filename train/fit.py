@@ -13,14 +13,12 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.nn.parallel import DistributedDataParallel
-
-from common.errors import SmspaceError
-from lake.dataset import Dataset
-from train.config import TrainConfig, check_resources
-from train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch, ranks_agree
-from train.evaluation import N_PREDICTIONS, EvalData
-from train.loop import (
+from smspace.common.errors import SmspaceError
+from smspace.lake.dataset import Dataset
+from smspace.train.config import TrainConfig, check_resources
+from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch, ranks_agree
+from smspace.train.evaluation import N_PREDICTIONS, EvalData
+from smspace.train.loop import (
     TrainingFailed,
     open_member,
     recorded_outcome,
@@ -29,9 +27,10 @@ from train.loop import (
     run_dataset,
     train,
 )
-from train.model import SensorimotorNet, prediction_loss
-from train.run_dir import CHECKPOINT, RunDir
-from train.terms import resumed
+from smspace.train.model import SensorimotorNet, prediction_loss
+from smspace.train.run_dir import CHECKPOINT, RunDir
+from smspace.train.terms import resumed
+from torch.nn.parallel import DistributedDataParallel
 
 __all__ = ["FitPlan", "SingleLearner", "TrainingFailed", "build", "fit", "plan_fit", "resolve_device"]
 RUNS = "runs"  # where a run goes without --out: runs/<dataset>-nh<N>-seed<S>

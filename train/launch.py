@@ -20,9 +20,8 @@ from datetime import timedelta
 from functools import partial
 
 import torch.distributed as dist
-
-from common.cli import die_with_parent
-from train.distributed import PEER_LOST, STORE_ENV
+from smspace.common.cli import die_with_parent
+from smspace.train.distributed import PEER_LOST, STORE_ENV
 
 GRACE_S = 5.0  # a rank that failed waits this long for rank 0 to fail the same way and say why
 
@@ -128,8 +127,8 @@ def _cause(exits: list[tuple[int, int]]) -> tuple[int, int] | None:
 
 def _record_failure(where: str, line: str) -> None:
     """The run's status, which a rank killed outright never wrote (best effort, within seconds)."""
-    from common.bounded import run_within
-    from train.run_dir import RunDir
+    from smspace.common.bounded import run_within
+    from smspace.train.run_dir import RunDir
 
     def mark() -> None:
         run = RunDir.open(where)

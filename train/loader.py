@@ -24,12 +24,11 @@ from typing import Any
 
 import numpy as np
 import torch
+from smspace.lake.dataset import Dataset
+from smspace.lake.manifest import Manifest
+from smspace.lake.normalise import normalisers
+from smspace.lake.shards import ShardReader
 from torch.utils.data import IterableDataset, get_worker_info
-
-from lake.dataset import Dataset
-from lake.manifest import Manifest
-from lake.normalise import normalisers
-from lake.shards import ShardReader
 
 
 @dataclass(frozen=True)

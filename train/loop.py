@@ -18,17 +18,16 @@ from typing import Any, Protocol
 
 import numpy as np
 import torch
+from smspace.common.bounded import run_within
+from smspace.common.errors import SmspaceError
+from smspace.lake.dataset import Dataset
+from smspace.train.config import TrainConfig, learning_rate
+from smspace.train.distributed import SINGLE, Ranks, mean_over_ranks, per_rank_batch
+from smspace.train.evaluation import EvalData, scores_row, write_evaluation
+from smspace.train.loader import TransitionStream
+from smspace.train.run_dir import RunDir
 from torch.utils.data import DataLoader
 from tqdm import tqdm
-
-from common.bounded import run_within
-from common.errors import SmspaceError
-from lake.dataset import Dataset
-from train.config import TrainConfig, learning_rate
-from train.distributed import SINGLE, Ranks, mean_over_ranks, per_rank_batch
-from train.evaluation import EvalData, scores_row, write_evaluation
-from train.loader import TransitionStream
-from train.run_dir import RunDir
 
 
 class TrainingFailed(SmspaceError):
@@ -112,7 +111,7 @@ def resume_members(learner: Learner, members: list[Member], device: torch.device
     that a kill left between the checkpoint writes of one evaluation (some at step S, the others
     at the evaluation before) are rolled back to the step all reached: the ensemble resumes as the
     uninterrupted one would have gone on."""
-    from train.fit import check_checkpoint  # the lone model's shapes: what every checkpoint holds
+    from smspace.train.fit import check_checkpoint  # the lone model's shapes: what every checkpoint holds
 
     checkpoints = [m.run.load_checkpoint(str(device)) for m in members]
     step = min(int(ckpt["step"]) for ckpt in checkpoints)

@@ -10,13 +10,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from common.errors import SmspaceError
-from lake.dataset import Dataset
-from lake.normalise import normalisers
-from metrics import affine_projection
-from train.run_dir import RunDir
-from train.terms import differing, terms
+from smspace.common.errors import SmspaceError
+from smspace.lake.dataset import Dataset
+from smspace.lake.normalise import normalisers
+from smspace.metrics import affine_projection
+from smspace.train.run_dir import RunDir
+from smspace.train.terms import differing, terms
 
 MODE_COLOURS = {"MEM": "tab:red", "MM": "tab:green", "MME": "tab:blue"}
 METRICS = (("eval_loss", "loss"), ("d_topo", "D_topo"), ("d_metric", "D_metric"))

@@ -22,11 +22,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
-
-from common.errors import SmspaceError
-from common.locks import HeldLock, hold_lock
-from lake.store import LocalStore, Store, WriteConflict, open_store
-from train.config import TrainConfig
+from smspace.common.errors import SmspaceError
+from smspace.common.locks import HeldLock, hold_lock
+from smspace.lake.store import LocalStore, Store, WriteConflict, open_store
+from smspace.train.config import TrainConfig
 
 CONFIG = "config.json"
 METRICS = "metrics.parquet"

@@ -13,18 +13,18 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from common.bounded import run_within
-from common.errors import SmspaceError
-from common.executors import WorkerDied, import_ray, in_processes, in_ray, ray_session
-from datagen.generate import generate
-from datagen.setups import get_setup
-from lake.catalog import check_lake
-from lake.manifest import load_manifest
-from lake.store import Store, open_store
-from train.config import TrainConfig
-from train.ensemble import train_ensemble
-from train.run_dir import CONFIG, RunDir
-from train.terms import HISTORY, STUDY, differing, study_template, terms
+from smspace.common.bounded import run_within
+from smspace.common.errors import SmspaceError
+from smspace.common.executors import WorkerDied, import_ray, in_processes, in_ray, ray_session
+from smspace.datagen.generate import generate
+from smspace.datagen.setups import get_setup
+from smspace.lake.catalog import check_lake
+from smspace.lake.manifest import load_manifest
+from smspace.lake.store import Store, open_store
+from smspace.train.config import TrainConfig
+from smspace.train.ensemble import train_ensemble
+from smspace.train.run_dir import CONFIG, RunDir
+from smspace.train.terms import HISTORY, STUDY, differing, study_template, terms
 
 
 def study_record(out: Store) -> dict[str, Any] | None:

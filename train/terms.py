@@ -24,8 +24,8 @@ import json
 from dataclasses import replace
 from typing import Any
 
-from common.errors import SmspaceError
-from train.config import TrainConfig
+from smspace.common.errors import SmspaceError
+from smspace.train.config import TrainConfig
 
 PER_RUN = ("dataset", "dataset_id", "dataset_config_hash", "dataset_shards_sha256", "mode", "seed", "run_id")
 EXECUTION = ("device", "threads", "loader_workers", "world_size")  # how a run ran, not what it computed

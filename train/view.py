@@ -6,12 +6,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
-
-from common.rerun_output import ViewOutput, recording
-from lake.dataset import Dataset
-from lake.normalise import normalisers
-from metrics import affine_projection
-from train.run_dir import RunDir
+from smspace.common.rerun_output import ViewOutput, recording
+from smspace.lake.dataset import Dataset
+from smspace.lake.normalise import normalisers
+from smspace.metrics import affine_projection
+from smspace.train.run_dir import RunDir
 
 
 def position_colours(p: np.ndarray) -> np.ndarray:

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from common.errors import SmspaceError
-from datagen.setups import arm, grid
-from datagen.setups.base import Setup, World, draw_transitions
-from lake.transitions import MODES, Transitions
+from smspace.common.errors import SmspaceError
+from smspace.datagen.setups import arm, grid
+from smspace.datagen.setups.base import Setup, World, draw_transitions
+from smspace.lake.transitions import MODES, Transitions
 
 SETUPS: dict[str, Setup] = {s.name: s for s in (*grid.SETUPS, *arm.SETUPS)}
 

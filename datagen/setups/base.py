@@ -10,8 +10,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-
-from lake.transitions import Transitions
+from smspace.lake.transitions import Transitions
 
 
 class World(Protocol):

@@ -6,8 +6,7 @@ import itertools
 from pathlib import Path
 
 import numpy as np
-
-from datagen.setups.base import Setup
+from smspace.datagen.setups.base import Setup
 
 GRID_SIZE = 10
 LEVELS = np.linspace(0.0, 1.0, 5)  # u ∈ {0, .25, .5, .75, 1}

@@ -3,10 +3,10 @@
 
 from __future__ import annotations
 
-from datagen.setups.arm.views import log_room_map, write_preview
-from datagen.setups.arm.vulkan import require_render_device
-from datagen.setups.arm.world import SHIFT_BOUND, ArmWorld, planar_fk
-from datagen.setups.base import Setup
+from smspace.datagen.setups.arm.views import log_room_map, write_preview
+from smspace.datagen.setups.arm.vulkan import require_render_device
+from smspace.datagen.setups.arm.world import SHIFT_BOUND, ArmWorld, planar_fk
+from smspace.datagen.setups.base import Setup
 
 
 def _builder(n_motor: int):

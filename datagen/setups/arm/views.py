@@ -6,9 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from datagen.setups.arm.world import SHIFT_BOUND, ArmWorld, overhead_pixel, overhead_view
-from lake.transitions import Transitions
+from smspace.datagen.setups.arm.world import SHIFT_BOUND, ArmWorld, overhead_pixel, overhead_view
+from smspace.lake.transitions import Transitions
 
 WORKSPACE_RADIUS = 1.5
 BLUE, ORANGE = (40, 110, 230), (240, 140, 20)

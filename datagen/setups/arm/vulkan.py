@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from common.errors import SmspaceError
+from smspace.common.errors import SmspaceError
 
 REPO = Path(__file__).resolve().parents[3]
 INSTALL_HINT = (

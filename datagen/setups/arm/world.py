@@ -13,9 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from datagen.setups.arm.room import ROOM_HALF, WALL_HEIGHT, Room, draw_room
-from datagen.setups.arm.vulkan import require_render_device
+from smspace.datagen.setups.arm.room import ROOM_HALF, WALL_HEIGHT, Room, draw_room
+from smspace.datagen.setups.arm.vulkan import require_render_device
 
 BASE_HEIGHT = 1.6
 IMAGE_SIZE = 16
