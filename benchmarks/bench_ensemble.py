@@ -1,9 +1,11 @@
 """Ensemble training speed on one CPU core: FLOPs per step, achieved FLOP/s against the machine's
-measured matmul FLOP/s, and the speed-up over training the same runs one after another.
+measured matmul FLOP/s, and the speed-up over training the same runs one after another; the
+ensemble as smspace trains it (any model stacked with torch.func) beside the hand-written one it
+replaced (benchmarks/old_ensemble.py).
 
 Prints one JSON object. The model step is timed on fixed random batches (the loaders cost ~50 µs
 per run-step and are reported separately by bench_train.py).
-Usage: python benchmarks/bench_ensemble.py [--runs 50] [--setup-sensors 4]
+Usage: python benchmarks/bench_ensemble.py [--runs 50] [--sensors 4 (grid) | 768 (arm)]
 """
 
 from __future__ import annotations
@@ -14,8 +16,11 @@ import time
 
 import torch
 from bench_train import matmul_flops, step_flops
-from smspace.train.config import TrainConfig, default_encoder_layers
-from smspace.train.ensemble import EnsembleNet
+
+from old_ensemble import EnsembleNet
+
+from smspace.train.config import TrainConfig
+from smspace.train.ensemble import Stacked
 from smspace.train.fit import build
 from smspace.train.model import prediction_loss
 
@@ -42,7 +47,7 @@ def main() -> None:
     peak = matmul_flops()
     r, ns, b = args.runs, args.sensors, 100
 
-    cfg = TrainConfig(dataset="bench", encoder_layers=list(default_encoder_layers("grid")))
+    cfg = TrainConfig(dataset="bench", encoder_layers=[150, 100, 50])
     single, opt1 = build(cfg, 3, ns, torch.device("cpu"))
     x1 = [torch.rand(b, k) * 2 - 1 for k in (3, ns, 3, ns)]
 
@@ -52,20 +57,27 @@ def main() -> None:
         loss.backward()
         opt1.step()
 
-    net = EnsembleNet(r, 3, ns, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers)
-    for i in range(r):
-        net.load_run(i, single.state_dict())
-    opt = torch.optim.Adam(net.parameters(), lr=1e-3, fused=True)
     xs = [torch.rand(r, b, k) * 2 - 1 for k in (3, ns, 3, ns)]
+    stacked = Stacked([build(cfg, 3, ns, torch.device("cpu"))[0] for _ in range(r)])
+    opt = torch.optim.Adam(stacked.parameters(), lr=1e-3, fused=True)
+    old = EnsembleNet(r, 3, ns, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers)
+    old_opt = torch.optim.Adam(old.parameters(), lr=1e-3, fused=True)
 
-    def ensemble_step() -> None:
-        loss = (net(xs[0], xs[1], xs[2]) - xs[3]).pow(2).sum(2).mean(1).sum()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
+    def step_of(forward, optimizer):
+        def step() -> None:
+            loss = prediction_loss(forward(xs[0], xs[1], xs[2]), xs[3]).sum()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+
+        return step
 
     t_single = seconds_per_step(single_step, args.repeats, 300)
-    t_ensemble = seconds_per_step(ensemble_step, args.repeats, max(5, 3000 // r))
+    n = max(5, 3000 // r)
+    t_old = seconds_per_step(step_of(old, old_opt), args.repeats, n)  # alternated, so that a noisy
+    t_ensemble = seconds_per_step(step_of(stacked.forward, opt), args.repeats, n)  # neighbour hits both
+    t_old = min(t_old, seconds_per_step(step_of(old, old_opt), args.repeats, n))
+    t_ensemble = min(t_ensemble, seconds_per_step(step_of(stacked.forward, opt), args.repeats, n))
     flops = step_flops(single, b)
     print(
         json.dumps(
@@ -80,6 +92,8 @@ def main() -> None:
                 "single_fraction_of_peak": round(flops / t_single / peak, 3),
                 "ensemble_ms_per_step": round(t_ensemble * 1e3, 2),
                 "ensemble_ms_per_run_step": round(t_ensemble * 1e3 / r, 3),
+                "handwritten_ensemble_ms_per_run_step": round(t_old * 1e3 / r, 3),
+                "torch_func_over_handwritten": round(t_ensemble / t_old, 3),
                 "ensemble_gflops": round(r * flops / t_ensemble / 1e9, 1),
                 "ensemble_fraction_of_peak": round(r * flops / t_ensemble / peak, 3),
                 "speedup_vs_sequential": round(r * t_single / t_ensemble, 2),

@@ -23,7 +23,6 @@ from smspace.datagen.generate import generate
 from smspace.lake.dataset import Dataset
 from smspace.lake.store import open_store
 from smspace.train.loader import TransitionStream
-
 from tests.servers import moto_s3
 
 

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import torch
+
 from smspace.datagen.generate import generate
 from smspace.lake.dataset import Dataset
 from smspace.train.config import TrainConfig, default_encoder_layers
@@ -36,7 +37,7 @@ def step_flops(model: torch.nn.Module, batch: int) -> float:
     """Forward matmul FLOPs × 3 (forward, grad of inputs, grad of weights): the usual estimate."""
     forward = 0
     for net, rows in ((model.encoder, 2 * batch), (model.predictor, batch)):
-        forward += sum(2 * rows * m.in_features * m.out_features for m in net if isinstance(m, torch.nn.Linear))
+        forward += sum(2 * rows * m.in_features * m.out_features for m in net if hasattr(m, "out_features"))
     return 3.0 * forward
 
 

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import click
+
 from smspace.common.errors import Interrupted, SmspaceError
 
 LAKE_OPTION = click.option(

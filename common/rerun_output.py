@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import click
+
 from smspace.common.cli import check_output, die_with_parent
 from smspace.common.errors import SmspaceError
 

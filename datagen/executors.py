@@ -12,12 +12,13 @@ import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
+from tqdm import tqdm
+
 from smspace.common.errors import SmspaceError
 from smspace.common.executors import WorkerDied, in_processes, in_ray, ray_get, ray_session
 from smspace.datagen.parts import PartRecord, preflight, write_part
 from smspace.lake.manifest import GenConfig
 from smspace.lake.store import Store
-from tqdm import tqdm
 
 EXECUTORS = ("local", "ray")
 Task = tuple[GenConfig, Store, int]

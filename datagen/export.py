@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
 from smspace.common.cli import check_output
 from smspace.common.errors import SmspaceError
 from smspace.lake.atomic import atomic_writer

@@ -16,6 +16,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
+
+from smspace import schemas
 from smspace.common.errors import SmspaceError
 from smspace.datagen.executors import ExecutorOptions, open_executor
 from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
@@ -33,8 +35,6 @@ from smspace.lake.manifest import (
     load_manifest,
 )
 from smspace.lake.store import Store
-
-from smspace import schemas
 
 LOCKS = ".locks"  # lake/.locks/<dataset id>.lock: held while that dataset is generated (local lakes)
 

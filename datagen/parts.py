@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
 from smspace.common.errors import SmspaceError
 from smspace.datagen.setups import MODES, World, draw_transitions, get_setup
 from smspace.lake.manifest import REGULAR_FILE, GenConfig, shard_name

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup
 from smspace.lake.dataset import Dataset

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+
 from smspace.common.rerun_output import ViewOutput, recording
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+
 from smspace.common.cli import display_name
 from smspace.common.errors import SmspaceError
 from smspace.lake.manifest import MANIFEST, Manifest, load_manifest

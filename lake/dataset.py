@@ -7,6 +7,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+
 from smspace.common.errors import SmspaceError
 from smspace.lake.integrity import check_file
 from smspace.lake.manifest import GENERATION, MANIFEST, Manifest, load_manifest

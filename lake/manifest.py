@@ -11,10 +11,9 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from smspace import schemas
 from smspace.common.errors import DatasetCorrupt, SmspaceError
 from smspace.lake.store import LocalStore, Store
-
-from smspace import schemas
 
 MANIFEST = "manifest.json"
 GENERATION = "generation.json"  # present only while a generation is unfinished

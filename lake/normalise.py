@@ -7,6 +7,7 @@ loader, the viewers, a third party) must scale exactly the same way and be able 
 from __future__ import annotations
 
 import numpy as np
+
 from smspace.lake.manifest import Manifest
 
 

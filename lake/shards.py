@@ -20,11 +20,11 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
+
+from smspace import schemas
 from smspace.common.errors import DatasetCorrupt, SmspaceError
 from smspace.lake.store import LocalStore, Store, TransferFailed
 from smspace.lake.transitions import Transitions
-
-from smspace import schemas
 
 CHUNK_PREFIX = 1 + 8  # a chunk record's opcode and length, before its content
 CHUNK_READS = 3  # a chunk failing its CRC is read again this often before anything is concluded

@@ -6,12 +6,12 @@ import hashlib
 from pathlib import Path
 
 import numpy as np
+
+from smspace import schemas
 from smspace.common.errors import SmspaceError
 from smspace.lake.manifest import load_manifest
 from smspace.lake.shards import ShardReader
 from smspace.lake.store import Store, open_store
-
-from smspace import schemas
 
 
 class _ModeCheck:

@@ -18,6 +18,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+
 from smspace.datagen.generate import generate
 from smspace.lake.dataset import Dataset
 from smspace.metrics.spatial import spatial_scores

@@ -8,6 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 from click.testing import CliRunner
+
 from smspace.datagen.setups.arm import ArmWorld, planar_fk
 from smspace.lake.dataset import Dataset
 

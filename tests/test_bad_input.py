@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
-from smspace.common.errors import SmspaceError
-from smspace.lake.dataset import Dataset
 
 from smspace import schemas
+from smspace.common.errors import SmspaceError
+from smspace.lake.dataset import Dataset
 
 from .conftest import smgen
 

@@ -9,8 +9,8 @@ import subprocess
 import time
 
 import pytest
-from smspace.train.run_dir import RunDir
 
+from smspace.train.run_dir import RunDir
 from tests.conftest import BIN, SAMPLES
 from tests.servers import assert_loopback_only, stop_group, tree
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+
 from smspace.train.cli import main as smtrain_main
 from smspace.train.config import TrainConfig
 from smspace.train.ensemble import train_ensemble
@@ -57,16 +58,16 @@ def test_a_run_inside_an_ensemble_is_the_run_trained_alone(tmp_path):
 @pytest.mark.numerical
 def test_an_ensemble_starts_from_the_lone_runs_weights_and_repeats_bit_for_bit(tmp_path):
     """Exact where the computation is the same: the initial weights, and the same ensemble re-run."""
-    from smspace.train.ensemble import EnsembleNet
+    from smspace.train.ensemble import Stacked
     from smspace.train.fit import build
 
     cfgs = [config("MEM", 11, steps=20), config("MME", 13, steps=20)]
-    net = EnsembleNet(2, 3, 4, 3, [150, 100, 50], [200, 150, 100])
-    for r, cfg in enumerate(cfgs):
-        lone = build(replace(cfg, encoder_layers=[150, 100, 50]), 3, 4, torch.device("cpu"))[0].state_dict()
-        net.load_run(r, lone)
-        for name, tensor in net.run_state(r).items():
-            assert torch.equal(tensor, lone[name]), name
+    lone = [build(replace(c, encoder_layers=[150, 100, 50]), 3, 4, torch.device("cpu"))[0] for c in cfgs]
+    stacked = Stacked(lone)
+    for r, model in enumerate(lone):
+        assert list(stacked.run_state(r)) == list(model.state_dict())  # the lone model's own format
+        for name, tensor in stacked.run_state(r).items():
+            assert torch.equal(tensor, model.state_dict()[name]), name
     twice = []
     for attempt in ("a", "b"):
         runs = [RunDir.create(tmp_path / f"{attempt}{i}", c, False) for i, c in enumerate(cfgs)]
@@ -189,7 +190,7 @@ def test_six_motor_setups_and_nh25_run_through_the_same_commands(tmp_path, setup
     h, p = run.embeddings(10)
     assert h.shape == (15625, 25) and p.shape == (15625, 2)
     state = torch.load(run.path / "checkpoint.pt", weights_only=True)["model"]
-    assert state["encoder.0.weight"].shape == (500, 6)  # the paper's larger encoder for six motors
+    assert state["encoder.0.weight"].shape == (6, 500)  # the paper's larger encoder for six motors (in, out)
     assert np.isfinite(run.metrics()[-1]["d_metric"])
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from smspace.datagen.setups import draw_transitions
 from smspace.datagen.setups.grid import GridWorld, sensory_table
 

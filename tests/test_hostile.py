@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+
 from smspace.train.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+
 from smspace.lake.shards import Block, ShardReader, shard_bytes
 from smspace.lake.store import LocalStore
 from smspace.lake.transitions import Transitions

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
+
 from smspace.datagen.parts import shard_rng, world_for
 from smspace.datagen.setups import draw_transitions
 from smspace.lake.dataset import Dataset

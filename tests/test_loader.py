@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from torch.utils.data import DataLoader
+
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
 from smspace.train.loader import TransitionStream
-from torch.utils.data import DataLoader
 
 from .conftest import SAMPLES
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 import smspace.metrics.spatial as spatial
 from smspace.datagen.setups.grid import GridWorld
 from smspace.metrics import affine_projection, spatial_scores

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from smspace.schemas.build import HERE, generate
-
 from smspace import schemas
+from smspace.schemas.build import HERE, generate
 
 
 def test_generated_module_matches_the_proto(tmp_path):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 from click.testing import CliRunner
+
 from smspace.train.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 

@@ -8,6 +8,7 @@ import subprocess
 import numpy as np
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+
 from smspace.lake.dataset import Dataset
 
 from .conftest import BIN

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+
 from smspace.metrics import spatial_scores
 from smspace.train.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
@@ -75,17 +76,20 @@ def test_model_defaults_are_the_paper_s(tmp_path):
     def paper(setup: str) -> TrainConfig:
         return TrainConfig(dataset="x", encoder_layers=list(default_encoder_layers(setup)))
 
+    from smspace.train.model import Dense
+
     model, opt = build(paper("grid"), 3, 4, torch.device("cpu"))
-    sizes = [m.out_features for m in model.encoder if isinstance(m, torch.nn.Linear)]
+    sizes = [m.out_features for m in model.encoder if isinstance(m, Dense)]
     assert sizes == [150, 100, 50, 3]
-    sizes = [m.out_features for m in model.predictor if isinstance(m, torch.nn.Linear)]
+    sizes = [m.out_features for m in model.predictor if isinstance(m, Dense)]
     assert sizes == [200, 150, 100, 4] and model.predictor[0].in_features == 3 + 3 + 4
-    assert all(float(m.bias.detach().abs().max()) == 0 for m in model.encoder if isinstance(m, torch.nn.Linear))
+    assert all(float(m.bias.detach().abs().max()) == 0 for m in model.encoder if isinstance(m, Dense))
     w = model.encoder[2].weight  # Glorot-uniform bound sqrt(6 / (fan_in + fan_out))
+    assert w.shape == (150, 100)  # stored (in, out)
     bound = float(w.detach().abs().max())
     assert 0.9 * math.sqrt(6 / 250) < bound <= math.sqrt(6 / 250)
     six, _ = build(paper("grid6"), 6, 4, torch.device("cpu"))
-    assert [m.out_features for m in six.encoder if isinstance(m, torch.nn.Linear)] == [500, 400, 300, 200, 3]
+    assert [m.out_features for m in six.encoder if isinstance(m, Dense)] == [500, 400, 300, 200, 3]
     assert opt.defaults["betas"] == (0.9, 0.999) and opt.defaults["eps"] == 1e-8
 
 
@@ -373,3 +377,46 @@ def test_a_run_resumed_from_its_step_0_checkpoint_records_step_0_once(tmp_path, 
     result = smtrain("fit", "--resume", run.path)
     assert result.exit_code == 0, result.output
     assert [r["step"] for r in RunDir.open(run.path).metrics()] == [0, 100, 200]
+
+
+@pytest.mark.numerical
+def test_a_checkpoint_of_smspace_0_1_resumes_bit_identical(tmp_path, monkeypatch):
+    """Dense weights are stored (in, out) since the ensembles became torch.func: a checkpoint of
+    0.1 (weights and Adam moments (out, in), no layout) is converted on resume, exactly."""
+    from dataclasses import replace
+
+    from smspace.train.config import TrainConfig
+    from smspace.train.fit import SingleLearner
+    from smspace.train.fit import fit as run_fit
+
+    ds = SAMPLES / "grid-seed0-MME"
+    cfg = TrainConfig(dataset=str(ds), dataset_id=ds.name, steps=40, eval_every=20, seed=5)
+    clean = RunDir.create(tmp_path / "clean", cfg, False)
+    run_fit(cfg, clean)
+    old = RunDir.create(tmp_path / "old", cfg, False)
+    real_step, calls = SingleLearner.train_step, []
+
+    def stop_after_20(self, batches):
+        calls.append(1)
+        if len(calls) > 20:
+            raise KeyboardInterrupt  # after the checkpoint of step 20
+        return real_step(self, batches)
+
+    with monkeypatch.context() as patched:
+        patched.setattr(SingleLearner, "train_step", stop_after_20)
+        with pytest.raises(KeyboardInterrupt):
+            run_fit(replace(cfg), old)
+    ckpt = torch.load(old.path / "checkpoint.pt", weights_only=True)
+    assert ckpt["step"] == 20 and ckpt.pop("layout") == "in-out"
+    names = list(ckpt["model"])
+    for i, name in enumerate(names):  # as smspace 0.1 wrote it
+        if ckpt["model"][name].dim() == 2:
+            ckpt["model"][name] = ckpt["model"][name].t().contiguous()
+            for key in ("exp_avg", "exp_avg_sq"):
+                ckpt["optimizer"]["state"][i][key] = ckpt["optimizer"]["state"][i][key].t().contiguous()
+    torch.save(ckpt, old.path / "checkpoint.pt")
+    assert smtrain("fit", "--resume", old.path).exit_code == 0
+    a, b = clean.metrics(), RunDir.open(old.path).metrics()
+    for row in (*a, *b):
+        row.pop("elapsed_s")
+    assert json.dumps(a) == json.dumps(b)

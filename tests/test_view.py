@@ -14,6 +14,7 @@ from collections import Counter
 import numpy as np
 import psutil
 import pytest
+
 from smspace.datagen.export import read_parquet_transitions
 from smspace.lake.dataset import Dataset
 
@@ -81,6 +82,7 @@ def test_smgen_view_arm_dataset_has_images_and_a_room_map(tmp_path):
 
 def test_smtrain_view_run(tmp_path):
     from click.testing import CliRunner
+
     from smspace.train.cli import main as smtrain_main
 
     run = tmp_path / "run"

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
+
 from smspace.common.cli import (
     LAKE_OPTION,
     OneLineErrors,

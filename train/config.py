@@ -6,16 +6,19 @@ from the fields marked `flag(...)`, and every run stores its resolved config in 
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import canonical
 from smspace.lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
 from smspace.lake.store import Store, open_store
+from smspace.train.model import DEFAULT_MODEL, build_model
+from smspace.train.model import parameter_count as count_parameters
 
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
@@ -30,6 +33,8 @@ def flag(
     kwargs: dict[str, Any] = {"metadata": {"help": help, "flag": name, "min": minimum, "max": maximum}}
     if isinstance(default, list):
         kwargs["default_factory"] = lambda: list(default)
+    elif isinstance(default, dict):
+        kwargs["default_factory"] = lambda: dict(default)
     else:
         kwargs["default"] = default
     return field(**kwargs)
@@ -51,6 +56,8 @@ class TrainConfig:
     n_h: int = flag(3, "Dimension of h.", name="--nh", minimum=1, maximum=MAX_WIDTH)
     encoder_layers: list[int] = flag([], "Net_enc hidden sizes, e.g. 150,100,50 [default: the paper's for the setup].")  # noqa: RUF009 - flag() returns a field
     predictor_layers: list[int] = flag(list(PAPER_PREDICTOR), "Net_pred hidden sizes.")  # noqa: RUF009
+    model: str = flag(DEFAULT_MODEL, "The network: sensorimotor (docs/MODEL.md §3) or one a plugin registers.")
+    model_params: dict[str, Any] = flag({}, "The model's own parameters, as a JSON object.")  # noqa: RUF009
     lr_start: float = flag(1e-3, "Learning rate at step 0.")
     lr_end: float = flag(1e-5, "Learning rate after the decay.")
     lr_decay_steps: int = flag(0, "Steps of the linear decay [0: 80% of --steps].", minimum=0)
@@ -121,9 +128,12 @@ def flag_fields() -> list:
 
 
 def parameter_count(cfg: TrainConfig, n_motor: int, n_sensor: int) -> int:
-    enc = [n_motor, *cfg.encoder_layers, cfg.n_h]
-    pred = [2 * cfg.n_h + n_sensor, *cfg.predictor_layers, n_sensor]
-    return sum(a * b + b for sizes in (enc, pred) for a, b in itertools.pairwise(sizes))
+    """The run's model built on the meta device: its parameters counted, nothing allocated."""
+    with torch.device("meta"):
+        model = build_model(
+            cfg.model, n_motor, n_sensor, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers, cfg.model_params
+        )
+    return count_parameters(model)
 
 
 def memory_needed(cfg: TrainConfig, n_motor: int, n_sensor: int, n_regular: int, runs: int = 1) -> int:

@@ -1,102 +1,97 @@
-"""Many independent runs trained at once as one vectorised model (batched matmuls over a runs
-dimension). Run r keeps its own dataset stream, seed, initial weights and Adam state, so it is
-mathematically the run `smtrain fit` would train alone; only the summation order of the matmuls
-differs. Every run writes the same folder as `smtrain fit`, checkpoint format included.
+"""Many independent runs trained at once as one vectorised model: the runs' own models, whatever
+they are, stacked with torch.func (stack_module_state, functional_call, vmap). Run r keeps its
+own dataset stream, seed, initial weights and Adam state, so it is the run `smtrain fit` would
+train alone; only the summation order of the batched matmuls differs. Each run's slice is exactly
+a lone model's state, so every run writes the same folder and checkpoint as `smtrain fit`.
 """
 
 from __future__ import annotations
 
-import itertools
+import copy
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import torch
+from torch import nn
+from torch.func import functional_call, stack_module_state, vmap
+
 from smspace.common.errors import SmspaceError
-from smspace.train.config import TrainConfig, check_resources
+from smspace.train.config import check_resources
 from smspace.train.evaluation import N_PREDICTIONS, EvalData
 from smspace.train.fit import build
 from smspace.train.loop import open_member, recorded_outcome, resolve_device, resume_members, train
+from smspace.train.model import prediction_loss
 from smspace.train.run_dir import RunDir
-from torch import nn
 
 
-class EnsembleMLP(nn.Module):
-    """R MLPs side by side: weights (R, in, out), biases (R, 1, out); SELU between layers."""
+class _Encode(nn.Module):
+    """`model.encode` as a forward, for functional_call (which calls forward)."""
 
-    def __init__(self, runs: int, sizes: list[int]):
+    def __init__(self, model: nn.Module):
         super().__init__()
-        self.weights = nn.ParameterList(nn.Parameter(torch.empty(runs, a, b)) for a, b in itertools.pairwise(sizes))
-        self.biases = nn.ParameterList(nn.Parameter(torch.zeros(runs, 1, b)) for b in sizes[1:])
+        self.model = model
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        last = len(self.weights) - 1
-        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
-            x = torch.baddbmm(b, x, w)
-            if i < last:
-                x = torch.selu(x)
-        return x
+    def forward(self, m: torch.Tensor) -> torch.Tensor:
+        return self.model.encode(m)
 
 
-class EnsembleNet(nn.Module):
-    def __init__(self, runs: int, n_motor: int, n_sensor: int, n_h: int, encoder: list[int], predictor: list[int]):
-        super().__init__()
-        self.encoder = EnsembleMLP(runs, [n_motor, *encoder, n_h])
-        self.predictor = EnsembleMLP(runs, [2 * n_h + n_sensor, *predictor, n_sensor])
+class Stacked:
+    """R models of one architecture as stacked tensors (R, …), each a leaf the optimiser steps;
+    their forward and encode run through vmap over the runs."""
 
-    def encode(self, m: torch.Tensor) -> torch.Tensor:
-        return self.encoder(m)
+    def __init__(self, models: Sequence[nn.Module]):
+        self.params, self.buffers = stack_module_state(list(models))
+        self.keys = list(models[0].state_dict())  # the lone model's state-dict order
+        base = copy.deepcopy(models[0]).to("meta")
+        self._forward = vmap(lambda p, b, *x: functional_call(base, (p, b), x))
+        encoder = _Encode(base)
+        self._encode = vmap(
+            lambda p, b, m: functional_call(
+                encoder, ({f"model.{k}": v for k, v in p.items()}, {f"model.{k}": v for k, v in b.items()}), (m,)
+            )
+        )
+
+    def parameters(self) -> list[torch.Tensor]:
+        return list(self.params.values())  # named_parameters order: the lone optimiser's indices
 
     def forward(self, m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor) -> torch.Tensor:
-        b = m_t.shape[1]
-        h = self.encoder(torch.cat([m_t, m_t1], dim=1))
-        return self.predictor(torch.cat([h[:, :b], h[:, b:], s_t], dim=2))
+        return self._forward(self.params, self.buffers, m_t, s_t, m_t1)
 
-    # -- the mapping to and from one SensorimotorNet ------------------------------------------------
-    def _pairs(self) -> list[tuple[str, nn.Parameter, bool]]:
-        """(single-run parameter name, stacked parameter, is a weight) in SensorimotorNet's order."""
-        pairs = []
-        for prefix, mlp in (("encoder", self.encoder), ("predictor", self.predictor)):
-            for i, (w, b) in enumerate(zip(mlp.weights, mlp.biases, strict=True)):
-                pairs += [(f"{prefix}.{2 * i}.weight", w, True), (f"{prefix}.{2 * i}.bias", b, False)]
-        return pairs
+    def encode(self, m: torch.Tensor) -> torch.Tensor:
+        return self._encode(self.params, self.buffers, m)
 
-    @staticmethod
-    def _to_stacked(x: torch.Tensor, is_weight: bool) -> torch.Tensor:
-        return x.t() if is_weight else x.unsqueeze(0)  # Linear keeps (out, in) and (out,)
-
-    @staticmethod
-    def _to_single(x: torch.Tensor, is_weight: bool) -> torch.Tensor:
-        return x.t().contiguous() if is_weight else x.squeeze(0).contiguous()
+    def run_state(self, r: int) -> dict[str, torch.Tensor]:
+        tensors = self.params | self.buffers
+        return {k: tensors[k][r].detach().clone() for k in self.keys}
 
     @torch.no_grad()
     def load_run(self, r: int, state: dict[str, torch.Tensor]) -> None:
-        for name, param, is_weight in self._pairs():
-            param[r].copy_(self._to_stacked(state[name], is_weight))
-
-    def run_state(self, r: int) -> dict[str, torch.Tensor]:
-        return {name: self._to_single(p.detach()[r], w).clone() for name, p, w in self._pairs()}
+        for k, tensor in (self.params | self.buffers).items():
+            tensor[r].copy_(state[k])
 
 
-def _adam_state_of_run(net: EnsembleNet, opt: torch.optim.Adam, r: int, lr: float) -> dict[str, Any]:
+def _adam_state_of_run(stacked: Stacked, opt: torch.optim.Adam, r: int, lr: float) -> dict[str, Any]:
     """Run r's slice of the stacked Adam state, in the layout `torch.optim.Adam.state_dict()` has
-    for a lone SensorimotorNet (so `smtrain fit --resume` continues a run trained in a sweep)."""
+    for the lone model (so `smtrain fit --resume` continues a run trained in a sweep)."""
     state = {}
-    for i, (_, param, is_weight) in enumerate(net._pairs()):
+    for i, param in enumerate(stacked.parameters()):
         s = opt.state[param]
         if not s:  # before the first step Adam has no state yet, as in a lone run's step-0 checkpoint
             continue
         state[i] = {
             "step": s["step"].clone(),
-            "exp_avg": net._to_single(s["exp_avg"][r], is_weight),
-            "exp_avg_sq": net._to_single(s["exp_avg_sq"][r], is_weight),
+            "exp_avg": s["exp_avg"][r].clone(),
+            "exp_avg_sq": s["exp_avg_sq"][r].clone(),
         }
     group = {k: v for k, v in opt.param_groups[0].items() if k != "params"} | {"lr": lr}
-    return {"state": state, "param_groups": [group | {"params": list(range(len(net._pairs())))}]}
+    return {"state": state, "param_groups": [group | {"params": list(range(len(stacked.parameters())))}]}
 
 
-def _load_adam_state(net: EnsembleNet, opt: torch.optim.Adam, r: int, saved: dict[str, Any]) -> None:
-    for i, (_, param, is_weight) in enumerate(net._pairs()):
+def _load_adam_state(stacked: Stacked, opt: torch.optim.Adam, r: int, saved: dict[str, Any]) -> None:
+    for i, param in enumerate(stacked.parameters()):
+        if i not in saved["state"]:  # a step-0 checkpoint: no moments yet
+            continue
         s = opt.state[param]
         if not s:
             s["step"] = torch.zeros((), dtype=torch.float32)
@@ -104,15 +99,15 @@ def _load_adam_state(net: EnsembleNet, opt: torch.optim.Adam, r: int, saved: dic
             s["exp_avg_sq"] = torch.zeros_like(param)
         src = saved["state"][i]
         s["step"].copy_(src["step"])
-        s["exp_avg"][r].copy_(net._to_stacked(src["exp_avg"], is_weight))
-        s["exp_avg_sq"][r].copy_(net._to_stacked(src["exp_avg_sq"], is_weight))
+        s["exp_avg"][r].copy_(src["exp_avg"])
+        s["exp_avg_sq"][r].copy_(src["exp_avg_sq"])
 
 
 class EnsembleLearner:
-    """R runs stacked in one EnsembleNet with one fused Adam: the `Learner` of a sweep."""
+    """R runs stacked with one fused Adam: the `Learner` of a sweep."""
 
-    def __init__(self, net: EnsembleNet, optimizer: torch.optim.Adam, data: list[EvalData]):
-        self.net, self.optimizer = net, optimizer
+    def __init__(self, stacked: Stacked, optimizer: torch.optim.Adam, data: list[EvalData]):
+        self.stacked, self.optimizer = stacked, optimizer
         self.m_regular = torch.stack([d.m_regular for d in data])
         self.eval_inputs = [torch.stack([getattr(d, k) for d in data]) for k in ("m_t", "s_t", "m_t1", "s_t1")]
 
@@ -123,7 +118,7 @@ class EnsembleLearner:
     def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
         device = self.m_regular.device
         m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(device) for k in range(4))
-        per_run = (self.net(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=2).mean(dim=1)  # (R,): each run's own loss
+        per_run = prediction_loss(self.stacked.forward(m_t, s_t, m_t1), s_t1)  # (R,): each run's own loss
         self.optimizer.zero_grad(set_to_none=True)
         per_run.sum().backward()  # parameters are disjoint: each run gets exactly its own gradient
         self.optimizer.step()
@@ -131,27 +126,31 @@ class EnsembleLearner:
 
     @torch.no_grad()
     def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
-        h_all = self.net.encode(self.m_regular).double().cpu().numpy()
-        pred = self.net(*self.eval_inputs[:3])
-        losses = (pred - self.eval_inputs[3]).pow(2).sum(dim=2).mean(dim=1).cpu().numpy()
-        pred = pred[:, :N_PREDICTIONS].cpu().numpy()
-        return losses, list(h_all), list(pred)
+        h_all = self.stacked.encode(self.m_regular).double().cpu().numpy()
+        pred = self.stacked.forward(*self.eval_inputs[:3])
+        losses = prediction_loss(pred, self.eval_inputs[3]).cpu().numpy()
+        return losses, list(h_all), list(pred[:, :N_PREDICTIONS].cpu().numpy())
 
     def state_of(self, r: int, lr: float) -> dict[str, Any]:
-        return {"model": self.net.run_state(r), "optimizer": _adam_state_of_run(self.net, self.optimizer, r, lr)}
+        return {
+            "model": self.stacked.run_state(r),
+            "optimizer": _adam_state_of_run(self.stacked, self.optimizer, r, lr),
+        }
 
     def load(self, r: int, checkpoint: dict[str, Any]) -> None:
-        self.net.load_run(r, checkpoint["model"])
-        _load_adam_state(self.net, self.optimizer, r, checkpoint["optimizer"])
+        self.stacked.load_run(r, checkpoint["model"])
+        _load_adam_state(self.stacked, self.optimizer, r, checkpoint["optimizer"])
 
 
-# What runs of one ensemble must share: the model's shape and the schedule the loop applies to all.
+# What runs of one ensemble must share: the model and the schedule the loop applies to all.
 SHARED = (
     "steps",
     "batch_size",
     "n_h",
     "encoder_layers",
     "predictor_layers",
+    "model",
+    "model_params",
     "lr_start",
     "lr_end",
     "lr_decay_steps",
@@ -160,7 +159,7 @@ SHARED = (
 )
 
 
-def _check_compatible(cfgs: list[TrainConfig]) -> None:
+def _check_compatible(cfgs: list) -> None:
     first = cfgs[0].to_dict()
     for cfg in cfgs[1:]:
         other = cfg.to_dict()
@@ -191,15 +190,12 @@ def _train_claimed(runs: list[RunDir], resume: bool, device: torch.device, progr
         if any(mf.n_motor != n_motor or mf.sensor_shape != shape for mf in manifests):
             raise SmspaceError("runs of one ensemble must have datasets of the same setup")
         n_sensor = int(np.prod(shape))
-        cfg0 = members[0].cfg
-        check_resources(cfg0, manifests[0], runs=len(runs))
-        net = EnsembleNet(len(runs), n_motor, n_sensor, cfg0.n_h, cfg0.encoder_layers, cfg0.predictor_layers).to(device)
-        opt = torch.optim.Adam(net.parameters(), lr=cfg0.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
-        learner = EnsembleLearner(net, opt, [m.data for m in members])
-        if resume:
-            step = resume_members(learner, members, device)
-        else:
-            step = 0
-            for r, m in enumerate(members):
-                net.load_run(r, build(m.cfg, n_motor, n_sensor, device)[0].state_dict())  # the very init `fit` draws
+        check_resources(members[0].cfg, manifests[0], runs=len(runs))
+        # each run's initial weights are the very ones its lone `fit` draws from its seed
+        stacked = Stacked([build(m.cfg, n_motor, n_sensor, device)[0] for m in members])
+        opt = torch.optim.Adam(
+            stacked.parameters(), lr=members[0].cfg.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True
+        )
+        learner = EnsembleLearner(stacked, opt, [m.data for m in members])
+        step = resume_members(learner, members, device) if resume else 0
         train(learner, members, step, progress)

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 import torch
+
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
 from smspace.metrics import spatial_scores

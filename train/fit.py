@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.nn.parallel import DistributedDataParallel
+
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.train.config import TrainConfig, check_resources
@@ -27,10 +29,9 @@ from smspace.train.loop import (
     run_dataset,
     train,
 )
-from smspace.train.model import SensorimotorNet, prediction_loss
+from smspace.train.model import build_model, prediction_loss
 from smspace.train.run_dir import CHECKPOINT, RunDir
 from smspace.train.terms import resumed
-from torch.nn.parallel import DistributedDataParallel
 
 __all__ = ["FitPlan", "SingleLearner", "TrainingFailed", "build", "fit", "plan_fit", "resolve_device"]
 RUNS = "runs"  # where a run goes without --out: runs/<dataset>-nh<N>-seed<S>
@@ -95,10 +96,17 @@ def plan_fit(
     return FitPlan(cfg, str(where), resume=False, overwrite=overwrite)
 
 
+def network(cfg: TrainConfig, n_motor: int, n_sensor: int) -> torch.nn.Module:
+    """The run's model (cfg.model with its parameters), as its config describes it."""
+    return build_model(
+        cfg.model, n_motor, n_sensor, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers, cfg.model_params
+    )
+
+
 def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):
     """The run's initial weights (drawn from its seed) and its optimiser."""
     torch.manual_seed(cfg.seed)
-    model = SensorimotorNet(n_motor, n_sensor, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers).to(device)
+    model = network(cfg, n_motor, n_sensor).to(device)
     # fused Adam: one kernel for all parameters, 1.5-2x faster steps than the per-tensor loop on a CPU
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
     return model, optimizer
@@ -106,31 +114,56 @@ def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):
 
 def check_checkpoint(checkpoint: dict[str, Any], cfg: TrainConfig, manifest, where: str) -> int:
     """The step of a checkpoint that belongs to this run's network, or one line saying why not (a
-    checkpoint of another run, another N_h or other layers) before anything is loaded into a model."""
+    checkpoint of another run, another N_h, other layers or another model) before anything is
+    loaded into a model. A checkpoint of smspace 0.1 (weights stored (out, in)) is converted."""
     n_sensor = int(np.prod(manifest.sensor_shape))
     with torch.device("meta"):  # shapes only: nothing is allocated
-        expected = SensorimotorNet(manifest.n_motor, n_sensor, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers)
+        expected = network(cfg, manifest.n_motor, n_sensor)
     shapes = {name: tuple(t.shape) for name, t in expected.state_dict().items()}
     state = checkpoint.get("model") if isinstance(checkpoint, dict) else None
     if not isinstance(state, dict) or not isinstance(checkpoint.get("step"), int):
         raise SmspaceError(f"{where} is not a smspace checkpoint (no model or step); it was not loaded")
+    if LAYOUT not in checkpoint:
+        _upgrade(checkpoint, shapes)
     got = {name: tuple(t.shape) for name, t in state.items() if isinstance(t, torch.Tensor)}
     if got != shapes:
         name = next((n for n in shapes if got.get(n) != shapes[n]), None) or next(n for n in got if n not in shapes)
         raise SmspaceError(
             f"{where} holds another network than this run's config ({name}: {got.get(name)} in the checkpoint, "
-            f"{shapes.get(name)} for N_h {cfg.n_h} and layers {cfg.encoder_layers}/{cfg.predictor_layers}); "
-            "it belongs to another run and was not loaded"
+            f"{shapes.get(name)} for model {cfg.model}, N_h {cfg.n_h} and layers "
+            f"{cfg.encoder_layers}/{cfg.predictor_layers}); it belongs to another run and was not loaded"
         )
     if not 0 <= checkpoint["step"] <= cfg.steps:
         raise SmspaceError(f"{where} is at step {checkpoint['step']}, outside this run's 0..{cfg.steps}")
     return checkpoint["step"]
 
 
-class SingleLearner:
-    """One SensorimotorNet and its Adam: the `Learner` of a lone run (under DDP, of one rank)."""
+LAYOUT = "layout"  # in checkpoints: "in-out", how dense weights are stored (absent: smspace 0.1's (out, in))
 
-    def __init__(self, model: SensorimotorNet, optimizer: torch.optim.Adam, data: EvalData, ranks: Ranks = SINGLE):
+
+def _upgrade(checkpoint: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> None:
+    """Weights smspace 0.1 stored (out, in), and their Adam moments, transposed to (in, out)."""
+    state = checkpoint["model"]
+    names = list(state)
+    flipped = [
+        n
+        for n in names
+        if state[n].dim() == 2 and tuple(state[n].shape[::-1]) == shapes.get(n) != tuple(state[n].shape)
+    ]
+    for n in flipped:
+        state[n] = state[n].t().contiguous()
+    moments = checkpoint.get("optimizer", {}).get("state", {})
+    for i, n in enumerate(names):
+        if n in flipped and i in moments:
+            for key in ("exp_avg", "exp_avg_sq"):
+                moments[i][key] = moments[i][key].t().contiguous()
+    checkpoint[LAYOUT] = "in-out"
+
+
+class SingleLearner:
+    """One model and its Adam: the `Learner` of a lone run (under DDP, of one rank)."""
+
+    def __init__(self, model: torch.nn.Module, optimizer: torch.optim.Adam, data: EvalData, ranks: Ranks = SINGLE):
         self.model, self.optimizer, self.data, self.ranks = model, optimizer, data, ranks
         self._trained: torch.nn.Module | None = None
 

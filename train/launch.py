@@ -20,6 +20,7 @@ from datetime import timedelta
 from functools import partial
 
 import torch.distributed as dist
+
 from smspace.common.cli import die_with_parent
 from smspace.train.distributed import PEER_LOST, STORE_ENV
 

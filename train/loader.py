@@ -24,11 +24,12 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import Manifest
 from smspace.lake.normalise import normalisers
 from smspace.lake.shards import ShardReader
-from torch.utils.data import IterableDataset, get_worker_info
 
 
 @dataclass(frozen=True)

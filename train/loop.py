@@ -18,6 +18,9 @@ from typing import Any, Protocol
 
 import numpy as np
 import torch
+from torch.utils.data import DataLoader
+from tqdm import tqdm
+
 from smspace.common.bounded import run_within
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
@@ -26,8 +29,8 @@ from smspace.train.distributed import SINGLE, Ranks, mean_over_ranks, per_rank_b
 from smspace.train.evaluation import EvalData, scores_row, write_evaluation
 from smspace.train.loader import TransitionStream
 from smspace.train.run_dir import RunDir
-from torch.utils.data import DataLoader
-from tqdm import tqdm
+
+LAYOUT = "layout"  # recorded in checkpoints: dense weights stored (in, out) (train/fit.py, _upgrade)
 
 
 class TrainingFailed(SmspaceError):
@@ -169,6 +172,7 @@ def train(
                 "elapsed_s": m.elapsed,
             }
             state = {**learner.state_of(r, lr), "stream": m.stream.state_dict(), "step": step, "elapsed_s": m.elapsed}
+            state[LAYOUT] = "in-out"
             write_evaluation(m.run, m.rows, row, hs[r], m.data, preds[r], state, keep_previous=count > 1)
 
     def diverged(at: int, losses: np.ndarray) -> TrainingFailed:

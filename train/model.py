@@ -1,22 +1,55 @@
-"""The sensorimotor predictive network (docs/MODEL.md §3): a siamese motor encoder and a sensory predictor."""
+"""The networks a run can train: the sensorimotor predictive network of docs/MODEL.md §3 (a siamese
+motor encoder and a sensory predictor), and any model another package registers.
+
+A model is a torch module built as `Model(n_motor, n_sensor, n_h, encoder_layers, predictor_layers,
+**params)` with `encode(m) -> h` and `forward(m_t, s_t, m_t1) -> predicted s_t1`. Another package
+registers one under the entry-point group `smspace.models` (docs/API.md, "Plugins"); `smtrain fit
+--model NAME` and study files name it, and config.json records its name and parameters.
+"""
 
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Sequence
+from functools import cache
+from importlib.metadata import entry_points
+from typing import Any
 
 import torch
 from torch import nn
 
+from smspace.common.errors import SmspaceError
+
+DEFAULT_MODEL = "sensorimotor"
+ENTRY_POINTS = "smspace.models"
+
+
+class Dense(nn.Module):
+    """A linear layer whose weight is stored (in, out): `x @ W + b` in one addmm, which the
+    ensembles' vmap turns into one batched matmul without transposed copies (nn.Linear's (out,
+    in) weight cost a third more time per step there). Glorot-uniform weights drawn as a (out, in)
+    matrix then transposed, so a seed gives the weights it always gave; zero biases."""
+
+    def __init__(self, in_features: int, out_features: int):
+        super().__init__()
+        self.in_features, self.out_features = in_features, out_features
+        weight = torch.empty(out_features, in_features)
+        nn.init.xavier_uniform_(weight)  # TF1 dense default, not PyTorch's Kaiming
+        self.weight = nn.Parameter(weight.t().contiguous())
+        self.bias = nn.Parameter(torch.zeros(out_features))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.dim() == 2:
+            return torch.addmm(self.bias, x, self.weight)
+        return x @ self.weight + self.bias
+
 
 def mlp(sizes: Sequence[int]) -> nn.Sequential:
-    """Linear layers with SELU between them and a linear output; Glorot-uniform weights, zero biases."""
+    """Dense layers with SELU between them and a linear output."""
     layers: list[nn.Module] = []
     for i, (fan_in, fan_out) in enumerate(itertools.pairwise(sizes)):
-        linear = nn.Linear(fan_in, fan_out)
-        nn.init.xavier_uniform_(linear.weight)  # TF1 dense default, not PyTorch's Kaiming
-        nn.init.zeros_(linear.bias)
-        layers.append(linear)
+        layers.append(Dense(fan_in, fan_out))
         if i < len(sizes) - 2:
             layers.append(nn.SELU())
     return nn.Sequential(*layers)
@@ -49,4 +82,47 @@ class SensorimotorNet(nn.Module):
 
 def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Squared error summed over sensor components, averaged over the batch (not mse_loss)."""
-    return (pred - target).pow(2).sum(dim=1).mean()
+    return (pred - target).pow(2).sum(dim=-1).mean(dim=-1)
+
+
+@cache
+def model_names() -> tuple[str, ...]:
+    """Every model a run may name: the built-in one and the registered ones (not loaded)."""
+    return (DEFAULT_MODEL, *sorted(ep.name for ep in entry_points(group=ENTRY_POINTS) if ep.name != DEFAULT_MODEL))
+
+
+def model_class(name: str) -> type[nn.Module]:
+    if name == DEFAULT_MODEL:
+        return SensorimotorNet
+    for ep in entry_points(group=ENTRY_POINTS):
+        if ep.name == name:
+            try:
+                return ep.load()
+            except Exception as e:
+                raise SmspaceError(f"model {name!r} ({ep.value}) cannot be loaded: {type(e).__name__}: {e}") from None
+    raise SmspaceError(f"unknown model {name!r} (choose from {', '.join(model_names())})")
+
+
+def build_model(
+    name: str,
+    n_motor: int,
+    n_sensor: int,
+    n_h: int,
+    encoder_layers: Sequence[int],
+    predictor_layers: Sequence[int],
+    params: dict[str, Any] | None = None,
+) -> nn.Module:
+    """A model by name, with its own parameters; a plugin's bad parameters are one line."""
+    cls = model_class(name)
+    try:
+        model = cls(n_motor, n_sensor, n_h, list(encoder_layers), list(predictor_layers), **(params or {}))
+    except TypeError as e:
+        raise SmspaceError(f"model {name!r} does not take these parameters ({e})") from None
+    for method in ("encode", "forward"):
+        if not callable(getattr(model, method, None)):
+            raise SmspaceError(f"model {name!r} has no {method}(); a model encodes m and predicts s_t1")
+    return model
+
+
+def parameter_count(model: nn.Module) -> int:
+    return sum(math.prod(p.shape) for p in model.parameters())

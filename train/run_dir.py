@@ -22,6 +22,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
+
 from smspace.common.errors import SmspaceError
 from smspace.common.locks import HeldLock, hold_lock
 from smspace.lake.store import LocalStore, Store, WriteConflict, open_store

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+
 from smspace.common.rerun_output import ViewOutput, recording
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers

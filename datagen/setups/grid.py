@@ -6,6 +6,7 @@ import itertools
 from pathlib import Path
 
 import numpy as np
+
 from smspace.datagen.setups.base import Setup
 
 GRID_SIZE = 10

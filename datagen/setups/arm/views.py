@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
 from smspace.datagen.setups.arm.world import SHIFT_BOUND, ArmWorld, overhead_pixel, overhead_view
 from smspace.lake.transitions import Transitions
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from smspace.datagen.setups.arm.room import ROOM_HALF, WALL_HEIGHT, Room, draw_room
 from smspace.datagen.setups.arm.vulkan import require_render_device
 
