@@ -16,7 +16,6 @@ import time
 
 import torch
 from bench_train import matmul_flops, step_flops
-
 from old_ensemble import EnsembleNet
 
 from smspace.train.config import TrainConfig

@@ -16,7 +16,7 @@ import torch
 
 from smspace.datagen.generate import generate
 from smspace.lake.dataset import Dataset
-from smspace.train.config import TrainConfig, default_encoder_layers
+from smspace.train.config import TrainConfig
 from smspace.train.fit import build
 from smspace.train.loader import TransitionStream
 from smspace.train.model import prediction_loss
@@ -43,7 +43,7 @@ def step_flops(model: torch.nn.Module, batch: int) -> float:
 
 def model_steps_per_s(n_sensor: int, steps: int, batch: int = 100) -> tuple[float, float]:
     model, opt = build(
-        TrainConfig(dataset="bench", batch_size=batch, encoder_layers=list(default_encoder_layers("grid"))),
+        TrainConfig(dataset="bench", batch_size=batch, encoder_layers=[150, 100, 50]),
         3,
         n_sensor,
         torch.device("cpu"),

@@ -20,7 +20,7 @@ from smspace.common.cli import (
 )
 from smspace.common.errors import SmspaceError
 from smspace.common.rerun_output import view_options
-from smspace.datagen.setups import SETUPS
+from smspace.datagen.setups import SETUPS, setup_names
 from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
 
 
@@ -32,7 +32,11 @@ def main() -> None:
 
 @main.command()
 @click.option(
-    "--setup", "setup_name", required=True, help="; ".join(f"{s.name}: {s.description}" for s in SETUPS.values())
+    "--setup",
+    "setup_name",
+    type=click.Choice(setup_names()),
+    required=True,
+    help="; ".join(f"{s.name}: {s.description}" for s in SETUPS.values()) + "; or a setup a plugin registers",
 )
 @click.option("--mode", required=True, help="MEM, MM, MME, several separated by commas, or all.")
 @click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
@@ -200,7 +204,13 @@ def validate(datasets, lake) -> None:
 
 @main.command()
 @click.argument("dataset", required=False)
-@click.option("--setup", "setup_name", default=None, help="Preview a world without a dataset (with --seed).")
+@click.option(
+    "--setup",
+    "setup_name",
+    type=click.Choice(setup_names()),
+    default=None,
+    help="Preview a world without a dataset (with --seed).",
+)
 @click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, show_default=True)
 @LAKE_OPTION
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder for the PNGs.")

@@ -165,6 +165,7 @@ def build_manifest(cfg: GenConfig, records: dict[int, PartRecord]) -> Manifest:
         normalisation=_merge_stats([r.stats for r in shards]),
         regular_sampling={"file": REGULAR_FILE, "count": reg.count} | reg.entry(),
         shift_bound=get_setup(cfg.setup).shift_bound,
+        network={"encoder_layers": list(get_setup(cfg.setup).encoder_layers)},
     )
 
 

@@ -129,6 +129,9 @@ class Manifest:
     # |shift component| ≤ shift_bound in MEM and MME (the MM shift is one fixed value); recorded so
     # that validate needs no knowledge of the setups. None only in manifests written before 0.2.
     shift_bound: float | None = None
+    # the network the setup suggests for its agent: {"encoder_layers": [...]}, so that training on
+    # the dataset needs no knowledge of the setups (None only in manifests written before 0.2)
+    network: dict[str, Any] | None = None
     software: dict[str, str] = field(default_factory=software_versions)
 
     @property

@@ -83,6 +83,11 @@ def _check_shapes(raw: dict[str, Any]) -> str | None:
         return f"sensor_shape {shape} has more than {MAX_SENSOR} components"
     if raw.get("sensor_dtype") not in DTYPES:
         return f"sensor_dtype {raw.get('sensor_dtype')!r} is not one of {', '.join(DTYPES)}"
+    network = raw.get("network")
+    if network is not None:
+        layers = network.get("encoder_layers") if isinstance(network, dict) else None
+        if not (isinstance(layers, list) and len(layers) <= 32 and all(_int(w, 1, 1 << 16) for w in layers)):
+            return "network encoder_layers is not a short list of positive integers"
     bound = raw.get("shift_bound")
     if bound is not None and not (isinstance(bound, int | float) and math.isfinite(bound) and bound >= 0):
         return "shift_bound is not a finite non-negative number"

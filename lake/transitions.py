@@ -7,6 +7,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from smspace.common.errors import SmspaceError
+
 MODES = ("MEM", "MM", "MME")  # how a dataset's shifts were drawn (docs/MODEL.md §1)
 
 
@@ -38,3 +40,22 @@ class Transitions:
 
 
 COLUMNS: tuple[str, ...] = tuple(f.name for f in fields(Transitions))
+
+
+def check_mode(mode: str) -> str:
+    if mode not in MODES:
+        raise SmspaceError(f"unknown mode {mode!r} (choose from {', '.join(MODES)} or all)")
+    return mode
+
+
+def parse_modes(text: str) -> list[str]:
+    """--mode / --modes: one mode, several separated by commas, or all."""
+    names = [m.strip() for m in text.split(",")]
+    if names == ["all"]:
+        return list(MODES)
+    if "" in names:
+        raise SmspaceError(f"--modes {text!r} has an empty entry (give e.g. MEM,MM or all)")
+    modes = [check_mode(m) for m in names]
+    if len(set(modes)) != len(modes):
+        raise SmspaceError(f"--modes {text!r} names a mode twice")
+    return modes

@@ -64,3 +64,27 @@ def test_nothing_points_outside_the_repository():
     texts = {p: (ROOT / p).read_text() for p in tracked if p.endswith((".py", ".md", ".sh", ".toml"))}
     bad = [p for p, text in texts.items() if OUTSIDE_PATH.search(text) or OUTSIDE_SPEC.search(text)]
     assert not bad, bad
+
+
+def test_training_imports_nothing_of_the_generators():
+    """A run needs only the lake: the setup's suggested network travels in the manifest. Only the
+    command line, which composes both (a sweep generates its datasets), may reach datagen."""
+    files = [p for p in sorted((ROOT / "train").rglob("*.py")) if p.name != "cli.py"]
+    assert len(files) >= 10
+    offending = {
+        f"{path.relative_to(ROOT)} imports {name}"
+        for path in files
+        for name in imported_modules(path)
+        if part(name) in ("datagen", "study")
+    }
+    assert not offending, offending
+
+
+def test_only_smspace_is_a_top_level_package():
+    """Everything imports as smspace.…: a researcher's own train.py or metrics.py shadows nothing."""
+    for path in [*ROOT.rglob("*.py")]:
+        if {".venv", "examples", "build"} & set(path.parts):
+            continue
+        for name in imported_modules(path):
+            head = name.split(".")[0]
+            assert head not in ("common", "lake", "datagen", "train", "metrics", "schemas", "study"), (path, name)

@@ -70,11 +70,12 @@ def test_short_run_learns_and_writes_a_complete_run_folder(tmp_path):
 
 
 def test_model_defaults_are_the_paper_s(tmp_path):
-    from smspace.train.config import TrainConfig, default_encoder_layers
+    from smspace.datagen.setups import get_setup
+    from smspace.train.config import TrainConfig
     from smspace.train.fit import build
 
     def paper(setup: str) -> TrainConfig:
-        return TrainConfig(dataset="x", encoder_layers=list(default_encoder_layers(setup)))
+        return TrainConfig(dataset="x", encoder_layers=list(get_setup(setup).encoder_layers))
 
     from smspace.train.model import Dense
 

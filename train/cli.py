@@ -48,6 +48,24 @@ def int_list(ctx, param, value: str | None) -> list[int] | None:
     return sizes
 
 
+def json_object(ctx, param, value: str | None) -> dict | None:
+    if value is None:
+        return None
+    try:
+        parsed = json.loads(value)
+    except json.JSONDecodeError:
+        raise click.BadParameter(f"expected a JSON object such as '{{\"width\": 64}}', got {value!r}") from None
+    if not isinstance(parsed, dict):
+        raise click.BadParameter(f"expected a JSON object, got {value!r}")
+    return parsed
+
+
+def _model_names() -> tuple[str, ...]:
+    from smspace.train.model import model_names
+
+    return model_names()
+
+
 class PositiveFinite(click.ParamType):
     """A float > 0 that is a number (click's FloatRange lets NaN and inf through)."""
 
@@ -64,6 +82,12 @@ class PositiveFinite(click.ParamType):
 
 
 POSITIVE_FINITE = PositiveFinite()
+
+
+def _setup_names() -> tuple[str, ...]:
+    from smspace.datagen.setups import setup_names  # the command line composes generation and training
+
+    return setup_names()
 
 
 def _flag_name(f: Field) -> str:
@@ -83,6 +107,13 @@ def config_options(exclude: tuple[str, ...] = ()) -> Callable:
             if isinstance(default, list):
                 shown = f" [default: {','.join(map(str, default))}]" if default else ""
                 option = click.option(_flag_name(f), f.name, callback=int_list, default=None, help=help_text + shown)
+            elif isinstance(default, dict):
+                option = click.option(_flag_name(f), f.name, callback=json_object, default=None, help=help_text)
+            elif f.name == "model":
+                option = click.option(
+                    _flag_name(f), f.name, type=click.Choice(_model_names()), default=default, show_default=True,
+                    help=help_text,
+                )  # fmt: skip
             else:
                 low, high = f.metadata["min"], f.metadata["max"]
                 bounded = low is not None or high is not None
@@ -211,7 +242,9 @@ def _attempt(action):
 
 
 @main.command()
-@click.option("--setup", "setup_name", required=True, help="grid, grid6, arm, arm6")
+@click.option(
+    "--setup", "setup_name", type=click.Choice(_setup_names()), required=True, help="A built-in or registered setup."
+)
 @click.option("--modes", default="MEM,MM,MME", show_default=True, help="Comma-separated modes, or all.")
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
 @click.option(
@@ -261,10 +294,11 @@ def sweep(
 ) -> None:
     """Generate missing datasets, then train every (world, mode) run as vectorised ensembles."""
     from smspace.common.cli import default_workers
-    from smspace.datagen.setups import get_setup, parse_modes
+    from smspace.datagen.setups import get_setup
     from smspace.lake.dataset import open_lake
+    from smspace.lake.transitions import parse_modes
+    from smspace.study.sweep import sweep as run_sweep
     from smspace.train.fit import resolve_device
-    from smspace.train.sweep import sweep as run_sweep
 
     get_setup(setup_name)
     mode_list = parse_modes(modes)

@@ -7,6 +7,7 @@ from the fields marked `flag(...)`, and every run stores its resolved config in 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -99,15 +100,17 @@ class TrainConfig:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in raw.items() if k in known})
 
-    def for_setup(self, setup: str, transitions: int) -> TrainConfig:
-        """This config for datasets of one setup and size: what a study's runs share."""
-        encoder = self.encoder_layers or default_encoder_layers(setup)
+    def for_setup(self, setup: str, transitions: int, encoder_layers: Sequence[int]) -> TrainConfig:
+        """This config for datasets of one setup and size: what a study's runs share; the encoder
+        the setup suggests unless one was given."""
+        encoder = self.encoder_layers or encoder_layers
         return replace(self, setup=setup, dataset_transitions=transitions, encoder_layers=list(encoder))
 
     def for_dataset(self, folder: Store | Path, manifest) -> TrainConfig:
-        """This config bound to a dataset: its identity, setup, mode and the setup's default encoder."""
+        """This config bound to a dataset: its identity, setup, mode and the encoder its manifest
+        records for the setup's agent."""
         return replace(
-            self.for_setup(manifest.setup, manifest.transitions),
+            self.for_setup(manifest.setup, manifest.transitions, default_encoder_layers(manifest)),
             dataset=canonical(folder if isinstance(folder, Store) else open_store(Path(folder))),
             dataset_id=manifest.dataset_id,
             dataset_config_hash=manifest.config_hash,
@@ -116,10 +119,15 @@ class TrainConfig:
         )
 
 
-def default_encoder_layers(setup: str) -> tuple[int, ...]:
-    from smspace.datagen.setups import get_setup  # the setup owns its body and so the paper's encoder for it
+PAPER_ENCODERS = {3: (150, 100, 50), 6: (500, 400, 300, 200)}  # by motors, for manifests of smspace 0.1
 
-    return get_setup(setup).encoder_layers
+
+def default_encoder_layers(manifest) -> tuple[int, ...]:
+    """The encoder the dataset's manifest records for its agent (the setup's choice); manifests
+    written before they recorded it get the paper's rule for their number of motors."""
+    if manifest.network and manifest.network.get("encoder_layers"):
+        return tuple(manifest.network["encoder_layers"])
+    return PAPER_ENCODERS.get(manifest.n_motor, PAPER_ENCODERS[3])
 
 
 def flag_fields() -> list:

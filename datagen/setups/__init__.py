@@ -1,39 +1,47 @@
-"""The registry of setups: it only collects what each setup's module declares (docs/MODEL.md §2)."""
+"""The registry of setups: it only collects what each setup's module declares (docs/MODEL.md §2),
+and the setups other packages register under the entry-point group `smspace.setups` (an entry
+point names a `Setup`, or a list of them; docs/API.md, "Plugins"). Plugins are loaded only when a
+command needs one: their names come from the package metadata."""
 
 from __future__ import annotations
+
+from functools import cache
+from importlib.metadata import entry_points
 
 from smspace.common.errors import SmspaceError
 from smspace.datagen.setups import arm, grid
 from smspace.datagen.setups.base import Setup, World, draw_transitions
-from smspace.lake.transitions import MODES, Transitions
+from smspace.lake.transitions import MODES, Transitions, check_mode, parse_modes
 
-SETUPS: dict[str, Setup] = {s.name: s for s in (*grid.SETUPS, *arm.SETUPS)}
+ENTRY_POINTS = "smspace.setups"
+SETUPS: dict[str, Setup] = {s.name: s for s in (*grid.SETUPS, *arm.SETUPS)}  # the built-in ones
 
 
+@cache
+def _plugins() -> dict[str, object]:
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINTS) if ep.name not in SETUPS}
+
+
+def setup_names() -> tuple[str, ...]:
+    """Every setup a command may name (the choices of --setup, for completion too)."""
+    return (*SETUPS, *sorted(_plugins()))
+
+
+@cache
 def get_setup(name: str) -> Setup:
-    try:
+    if name in SETUPS:
         return SETUPS[name]
-    except KeyError:
-        raise SmspaceError(f"unknown setup {name!r} (choose from {', '.join(SETUPS)})") from None
-
-
-def check_mode(mode: str) -> str:
-    if mode not in MODES:
-        raise SmspaceError(f"unknown mode {mode!r} (choose from {', '.join(MODES)} or all)")
-    return mode
-
-
-def parse_modes(text: str) -> list[str]:
-    """--mode / --modes: one mode, several separated by commas, or all."""
-    names = [m.strip() for m in text.split(",")]
-    if names == ["all"]:
-        return list(MODES)
-    if "" in names:
-        raise SmspaceError(f"--modes {text!r} has an empty entry (give e.g. MEM,MM or all)")
-    modes = [check_mode(m) for m in names]
-    if len(set(modes)) != len(modes):
-        raise SmspaceError(f"--modes {text!r} names a mode twice")
-    return modes
+    ep = _plugins().get(name)
+    if ep is None:
+        raise SmspaceError(f"unknown setup {name!r} (choose from {', '.join(setup_names())})")
+    try:
+        found = ep.load()
+    except Exception as e:
+        raise SmspaceError(f"setup {name!r} ({ep.value}) cannot be loaded: {type(e).__name__}: {e}") from None
+    for setup in found if isinstance(found, list | tuple) else [found]:
+        if isinstance(setup, Setup) and setup.name == name:
+            return setup
+    raise SmspaceError(f"the entry point {ep.value} of setup {name!r} declares no Setup named {name!r}")
 
 
 __all__ = [
@@ -46,4 +54,5 @@ __all__ = [
     "draw_transitions",
     "get_setup",
     "parse_modes",
+    "setup_names",
 ]

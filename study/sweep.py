@@ -72,7 +72,8 @@ def plan_study(
     """The template every run of the study trains with (train/terms.py, rule 4), and the line
     saying how the study changed; checked before any dataset is generated."""
     recorded = None if overwrite else recorded_study(out)
-    return study_template(recorded, template.for_setup(setup, transitions), explicit, out.url)
+    resolved = template.for_setup(setup, transitions, get_setup(setup).encoder_layers)
+    return study_template(recorded, resolved, explicit, out.url)
 
 
 def plan_runs(
