@@ -179,7 +179,8 @@ def _release(guard: subprocess.Popen) -> None:
 
 def in_ray(ray, remote_fn, tasks: list[tuple]) -> Iterator[tuple[tuple, Any]]:
     """(task, result) in completion order from a Ray remote function; an error or interrupt cancels
-    the tasks still running."""
+    the tasks still running on a cluster we joined (a Ray started here is stopped whole; and
+    cancelling a task that is finishing trips a check inside Ray 2.60)."""
     refs = {remote_fn.remote(*task): task for task in tasks}
     try:
         pending = list(refs)
@@ -188,8 +189,11 @@ def in_ray(ray, remote_fn, tasks: list[tuple]) -> Iterator[tuple[tuple, Any]]:
             for ref in done:
                 yield refs[ref], ray_get(ray, ref)
     except BaseException:
-        for ref in refs:
-            ray.cancel(ref, force=True)
+        if os.environ.get("RAY_ADDRESS"):
+            _, running = ray.wait(list(refs), num_returns=len(refs), timeout=0)
+            for ref in running:
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
         raise
 
 

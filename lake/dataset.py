@@ -120,6 +120,11 @@ class Dataset:
             with self.shard_reader(i) as reader:
                 yield from reader.blocks()
 
+    def transitions(self, limit: int | None = None) -> Transitions:
+        """The first `limit` transitions (all by default), as numpy columns (privileged p and shift
+        included: for analysis; the training stream leaves them out)."""
+        return self.read_all(limit)
+
     def read_all(self, limit: int | None = None) -> Transitions:
         """The first `limit` transitions (all by default) in index order, as numpy arrays; only the
         blocks needed are read (paper-sized sets fit in memory)."""

@@ -27,7 +27,7 @@ def one_error_line(result) -> str:
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["--setup", "cube", "--mode", "MM"], "unknown setup 'cube'"),
+        (["--setup", "cube", "--mode", "MM"], "'cube' is not one of 'grid'"),
         (["--setup", "grid", "--mode", "XM"], "unknown mode 'XM'"),
         (["--setup", "grid", "--mode", "MM", "--transitions", "0"], "--transitions must be positive"),
         (["--setup", "grid", "--mode", "MM", "--transitions", "-5"], "--transitions must be positive"),

@@ -79,6 +79,11 @@ def launch_local(nproc: int, argv: list[str], where: str) -> int:
         if cause is None:
             return 0
         rank, code = cause
+        if procs[0].returncode == 0:  # the run finished (weights compared at every evaluation, the last
+            # included); another rank failing while the process group was torn down cannot touch it
+            how = signal.Signals(-code).name if code < 0 else f"code {code}"
+            print(f"smtrain: note: rank {rank} ended with {how} after the run finished", file=sys.stderr)
+            return 0
         resume = f"smtrain fit --resume {where} --nproc {nproc}"
         if code < 0:  # died by a signal: nothing of it could speak or record its end
             name = signal.Signals(-code).name

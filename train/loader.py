@@ -30,6 +30,7 @@ from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import Manifest
 from smspace.lake.normalise import normalisers
 from smspace.lake.shards import ShardReader
+from smspace.lake.store import Store
 
 
 @dataclass(frozen=True)
@@ -70,13 +71,15 @@ class TransitionStream(IterableDataset):
         window: int = 8,
         rank: int | None = None,
         world_size: int | None = None,
+        lake: str | Path | Store | None = None,
     ):
-        """rank/world_size default to torch.distributed's when it is initialised, else 0 of 1. They
-        are resolved here, in the rank's own process: DataLoader workers started by spawn have no
-        process group, and resolving there made every rank read the whole dataset."""
+        """`dataset`: a Dataset, its folder or URL, or an id in `lake` (default: $SMSPACE_LAKE or
+        data/lake). rank/world_size default to torch.distributed's when it is initialised, else 0
+        of 1. They are resolved here, in the rank's own process: DataLoader workers started by
+        spawn have no process group, and resolving there made every rank read the whole dataset."""
         super().__init__()
         self.rank, self.world_size = _rank(rank, world_size)
-        self.dataset = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
+        self.dataset = dataset if isinstance(dataset, Dataset) else Dataset.open(str(dataset), lake)
         self.batch_size = batch_size
         self.seed = seed
         self.epochs = epochs  # None: sample endlessly (step-based training)

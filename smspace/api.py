@@ -1,0 +1,122 @@
+"""The Python API (docs/API.md): a lake, its datasets, generation and training, as a researcher's
+notebook or script calls them. A thin layer over what the commands use: the same checks, the same
+files, the same one-line errors (SmspaceError)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from smspace.lake.catalog import check_lake, read_catalog
+from smspace.lake.dataset import Dataset, resolve_dataset
+from smspace.lake.dataset import open_lake as _open_store
+from smspace.lake.store import Store
+from smspace.lake.transitions import parse_modes
+from smspace.train.run_dir import RunDir
+
+
+class Lake:
+    """A lake: a folder or an fsspec URL (s3://bucket/lake), and the datasets it holds."""
+
+    def __init__(self, where: str | Path | Store | None = None):
+        self.store = _open_store(where)  # None: $SMSPACE_LAKE, else data/lake
+
+    @property
+    def url(self) -> str:
+        return self.store.url
+
+    def catalog(self) -> pa.Table:
+        """One row per complete dataset: id, setup, mode, world seed, transitions, shards, bytes…"""
+        return read_catalog(self.store)
+
+    def ids(self) -> list[str]:
+        return self.catalog().column("id").to_pylist()
+
+    def dataset(self, dataset_id: str) -> Dataset:
+        return Dataset(resolve_dataset(dataset_id, self.store))
+
+    def __repr__(self) -> str:
+        return f"Lake({self.url!r})"
+
+
+def open_lake(where: str | Path | Store | None = None) -> Lake:
+    """A lake by folder or URL (None: $SMSPACE_LAKE, else data/lake)."""
+    return Lake(where)
+
+
+def load_dataset(ref: str | Path | Dataset, lake: Lake | str | Path | None = None) -> Dataset:
+    """A dataset by id in a lake, or by its folder or URL: its manifest, and reads into numpy."""
+    if isinstance(ref, Dataset):
+        return ref
+    store = lake.store if isinstance(lake, Lake) else lake
+    return Dataset.open(str(ref), store)
+
+
+def generate(
+    setup: str,
+    modes: str | list[str] = "all",
+    worlds: int = 1,
+    seed: int = 0,
+    transitions: int | None = None,
+    lake: Lake | str | Path | None = None,
+    workers: int = 1,
+) -> list[Dataset]:
+    """Generate (or complete) the datasets of `worlds` worlds from `seed`, as `smgen generate`."""
+    from smspace.datagen.generate import generate as run
+    from smspace.datagen.setups import get_setup
+
+    spec = get_setup(setup)
+    store = check_lake(lake.store if isinstance(lake, Lake) else _open_store(lake))
+    mode_list = parse_modes(modes) if isinstance(modes, str) else list(modes)
+    n = spec.default_transitions if transitions is None else transitions
+    results = run(store, setup, mode_list, range(seed, seed + worlds), n, spec.default_shard_size, workers=workers)
+    return [Dataset(store.child(manifest.dataset_id)) for manifest, _ in results]
+
+
+class Run(RunDir):
+    """A run folder: config, metrics, embeddings of h at every evaluation, checkpoint, status."""
+
+    def __repr__(self) -> str:
+        return f"Run({str(self.path)!r})"
+
+
+def fit(
+    dataset: str | Path | Dataset,
+    out: str | Path | None = None,
+    lake: Lake | str | Path | None = None,
+    overwrite: bool = False,
+    **flags: Any,
+) -> Run:
+    """Train one run on a dataset, as `smtrain fit`: `flags` are TrainConfig's fields (steps,
+    n_h, encoder_layers, model, model_params, seed…), checked as the command checks its flags."""
+    from smspace.train.config import TrainConfig, flag_fields
+    from smspace.train.fit import fit as run_fit
+    from smspace.train.fit import plan_fit
+
+    names = {f.name for f in flag_fields()}
+    unknown = sorted(set(flags) - names)
+    if unknown:
+        raise TypeError(f"fit() got unknown training fields {unknown}; choose from {sorted(names)}")
+    template = TrainConfig(dataset="", **flags)
+    ds = load_dataset(dataset, lake)
+    given = ["--steps"] if "steps" in flags else []
+    plan = plan_fit(template, ds.url, None, None if out is None else str(out), None, overwrite, given, 1)
+    run = plan.start()
+    run_fit(plan.cfg, run)
+    return Run(run.store)
+
+
+def resume(run: str | Path | RunDir, steps: int | None = None) -> Run:
+    """Continue a run from its last checkpoint (`steps` may extend it: train/terms.py)."""
+    from smspace.train.config import TrainConfig
+    from smspace.train.fit import fit as run_fit
+    from smspace.train.fit import plan_fit
+
+    where = str(run.path) if isinstance(run, RunDir) else str(run)
+    template = TrainConfig(dataset="", **({} if steps is None else {"steps": steps}))
+    plan = plan_fit(template, None, None, None, where, False, ["--steps"] if steps is not None else [], 1)
+    started = plan.start()
+    run_fit(plan.cfg, started, resume=True)
+    return Run(started.store)

@@ -1,0 +1,38 @@
+"""The Python API: every example of docs/API.md runs, in order, as a reader would run it."""
+
+from __future__ import annotations
+
+import re
+import shutil
+
+import pytest
+
+import smspace
+
+from .conftest import ROOT, SAMPLES
+
+
+def examples() -> list[str]:
+    return re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "API.md").read_text(), flags=re.S)
+
+
+def test_the_examples_of_docs_api_run(tmp_path, monkeypatch):
+    shutil.copytree(SAMPLES, tmp_path / "data" / "samples")
+    monkeypatch.chdir(tmp_path)
+    blocks = examples()
+    assert len(blocks) >= 5
+    namespace: dict = {}
+    for block in blocks:
+        exec(compile(block, "docs/API.md", "exec"), namespace)
+    assert namespace["run"].config.extensions == [{"from_steps": 200, "to_steps": 300}]
+    assert [row["step"] for row in namespace["run"].metrics()] == [0, 100, 200, 300]
+    assert namespace["h"].shape == (125, 3)
+
+
+def test_what_is_public_is_named_and_loads():
+    for name in smspace.__all__:
+        assert getattr(smspace, name) is not None, name
+    with pytest.raises(AttributeError):
+        _ = smspace.no_such_name
+    with pytest.raises(TypeError, match="unknown training fields"):
+        smspace.fit("grid-seed0-MM", lake=SAMPLES, stepz=10)
