@@ -15,7 +15,7 @@ from pathlib import Path
 
 import click
 
-from smspace.common.errors import Interrupted, SmspaceError
+from smspace.common.errors import Interrupted, SmspaceError, one_line
 
 LAKE_OPTION = click.option(
     "--lake",
@@ -39,7 +39,7 @@ def executor_option(what: str) -> Callable:
 def fail(message: str, code: int = 2) -> None:
     prog = click.get_current_context(silent=True)
     name = prog.find_root().info_name if prog else Path(sys.argv[0]).name
-    click.echo(f"{name}: error: {' '.join(message.split())}", err=True)  # one line, whatever the message held
+    click.echo(f"{name}: error: {one_line(message, limit=2000)}", err=True)  # one line, whatever the message held
     sys.exit(code)
 
 

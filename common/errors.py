@@ -3,6 +3,15 @@
 from __future__ import annotations
 
 
+def one_line(e: BaseException | str, limit: int = 200, with_type: bool = False) -> str:
+    """An exception (or a message) as one short line, whatever library raised it and whatever
+    newlines it held: what every one-line error of smspace is made of."""
+    text = " ".join(str(e).split())[:limit]
+    if isinstance(e, BaseException) and (with_type or not text):
+        return f"{type(e).__name__}: {text}" if text else type(e).__name__
+    return text
+
+
 class SmspaceError(Exception):
     """Bad input or a broken dataset: the message is shown to the user as is."""
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from smspace.common.cli import die_with_parent
-from smspace.common.errors import SmspaceError
+from smspace.common.errors import SmspaceError, one_line
 
 
 class WorkerDied(SmspaceError):
@@ -92,6 +92,47 @@ def _quiet_resource_tracker() -> None:
     resource_tracker.ensure_running()
 
 
+EXECUTORS = ("local", "ray")
+
+
+class Executor:
+    """Where tasks run: this process, a pool of spawned processes, or Ray tasks. The one place the
+    choice is made, for generation (a task per part) and sweeps (a task per ensemble)."""
+
+    def __init__(self, workers: int, ray: Any = None, ray_options: dict[str, Any] | None = None):
+        self.workers, self._ray, self._options = workers, ray, ray_options or {}
+
+    def call(self, fn: Callable, *args: Any) -> Any:
+        """One call where the tasks run (a pre-flight that must pass on the workers themselves)."""
+        if self._ray is None:
+            return fn(*args)
+        return ray_get(self._ray, self._ray.remote(**self._options)(fn).remote(*args))
+
+    def map(self, fn: Callable, tasks: list[tuple]) -> Iterator[tuple[tuple, Any]]:
+        """(task, fn(*task)) in completion order: in this process for one worker or one task, else
+        in `workers` spawned processes, or as Ray tasks."""
+        if self._ray is not None:
+            yield from in_ray(self._ray, self._ray.remote(**self._options)(fn), tasks)
+        elif self.workers <= 1 or len(tasks) <= 1:
+            for task in tasks:
+                yield task, fn(*task)
+        else:
+            yield from in_processes(fn, tasks, self.workers)
+
+
+@contextlib.contextmanager
+def open_executor(kind: str, workers: int, **ray_options: Any) -> Iterator[Executor]:
+    """`kind`: local (processes of this machine) or ray ($RAY_ADDRESS, else a local Ray on
+    `workers` CPUs); `ray_options`: what each Ray task asks for (num_cpus, num_gpus, max_retries…)."""
+    if kind == "local":
+        yield Executor(workers)
+    elif kind == "ray":
+        with ray_session(workers) as ray:
+            yield Executor(workers, ray, ray_options)
+    else:
+        raise SmspaceError(f"unknown --executor {kind!r} (one of {', '.join(EXECUTORS)})")
+
+
 def import_ray(flag: str = "--executor ray"):
     try:
         import ray
@@ -136,7 +177,7 @@ def ray_session(cpus: int) -> Iterator[Any]:
                 logging_level="ERROR",
             )
     except Exception as e:
-        raise SmspaceError(f"cannot start or join Ray ({address or 'local'}): {_line(e)}") from None
+        raise SmspaceError(f"cannot start or join Ray ({address or 'local'}): {one_line(e, limit=300)}") from None
     finally:
         signal.signal(signal.SIGTERM, handler)  # ray.init installs its own: SIGTERM must stop us as Ctrl-C does
     guard = None if address else _guard_local_ray()
@@ -205,10 +246,6 @@ def ray_get(ray, ref):
         original = getattr(e, "cause", None)
         if isinstance(original, SmspaceError):
             raise SmspaceError(str(original)) from None
-        raise SmspaceError(f"a Ray task failed: {_line(original or e)}") from None
+        raise SmspaceError(f"a Ray task failed: {one_line(original or e, limit=300)}") from None
     except ray.exceptions.RayError as e:
-        raise SmspaceError(f"a Ray task failed: {_line(e)}") from None
-
-
-def _line(e: BaseException) -> str:
-    return " ".join(str(e).split())[:300] or type(e).__name__
+        raise SmspaceError(f"a Ray task failed: {one_line(e, limit=300)}") from None

@@ -14,13 +14,12 @@ from dataclasses import dataclass
 
 from tqdm import tqdm
 
-from smspace.common.errors import SmspaceError
-from smspace.common.executors import WorkerDied, in_processes, in_ray, ray_get, ray_session
+from smspace.common.executors import WorkerDied
+from smspace.common.executors import open_executor as shared_executor
 from smspace.datagen.parts import PartRecord, preflight, write_part
 from smspace.lake.manifest import GenConfig
 from smspace.lake.store import Store
 
-EXECUTORS = ("local", "ray")
 Task = tuple[GenConfig, Store, int]
 Runner = Callable[[list[Task]], list[tuple[Task, PartRecord]]]
 
@@ -43,21 +42,13 @@ def _transitions(task: Task) -> int:
 @contextlib.contextmanager
 def open_executor(executor: str, setup: str, options: ExecutorOptions) -> Iterator[Runner]:
     """A runner of tasks, once the setup's pre-flight passed where the parts will run (before
-    anything is written). The runner runs every task, in any order; an error stops the others and
-    is raised in one line."""
-    if executor == "local":
-        preflight(setup)
-        yield _progress(lambda tasks: _run_local(tasks, options))
-    elif executor == "ray":
-        with ray_session(options.workers) as ray:
-            resources = {"num_cpus": 1, "num_gpus": options.gpus_per_task, "max_retries": options.max_retries}
-            # the driver may have no Vulkan: the setup's pre-flight runs where the parts will
-            ray_get(ray, ray.remote(**resources)(preflight).remote(setup))
-            # GPU tasks default to max_calls=1 (a fresh worker, hence a fresh SAPIEN room, per part)
-            part_task = ray.remote(**resources, retry_exceptions=False, max_calls=0)(write_part)
-            yield _progress(lambda tasks: in_ray(ray, part_task, tasks))
-    else:
-        raise SmspaceError(f"unknown --executor {executor!r} (one of {', '.join(EXECUTORS)})")
+    anything is written; on Ray, on a worker: the driver may have no Vulkan). The runner runs every
+    task, in any order; an error stops the others and is raised in one line."""
+    ray_options = {"num_cpus": 1, "num_gpus": options.gpus_per_task, "max_retries": options.max_retries}
+    # GPU tasks default to max_calls=1 (a fresh worker, hence a fresh SAPIEN room, per part)
+    with shared_executor(executor, options.workers, **ray_options, retry_exceptions=False, max_calls=0) as ex:
+        ex.call(preflight, setup)
+        yield _progress(lambda tasks: ex.map(write_part, tasks))
 
 
 def _progress(run: Callable[[list[Task]], Iterator[tuple[Task, PartRecord]]]) -> Runner:
@@ -65,20 +56,14 @@ def _progress(run: Callable[[list[Task]], Iterator[tuple[Task, PartRecord]]]) ->
         total = sum(_transitions(t) for t in tasks)
         with tqdm(total=total, unit="tr", unit_scale=True, disable=None, file=sys.stderr, desc="generating") as bar:
             done = []
-            for task, record in run(tasks):
-                done.append((task, record))
-                bar.update(_transitions(task))
+            try:
+                for task, record in run(tasks):
+                    done.append((task, record))
+                    bar.update(_transitions(task))
+            except WorkerDied as e:
+                raise WorkerDied(
+                    f"{e}; the parts already stored are kept: the same command completes the datasets"
+                ) from None
             return done
 
     return runner
-
-
-def _run_local(tasks: list[Task], options: ExecutorOptions) -> Iterator[tuple[Task, PartRecord]]:
-    if options.workers <= 1 or sum(_transitions(t) > 0 for t in tasks) <= 1:  # no pool for one shard
-        for task in tasks:
-            yield task, write_part(*task)
-        return
-    try:
-        yield from in_processes(write_part, tasks, options.workers)
-    except WorkerDied as e:
-        raise WorkerDied(f"{e}; the parts already stored are kept: the same command completes the datasets") from None

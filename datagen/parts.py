@@ -134,7 +134,7 @@ def verify_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord | None:
     except (FileNotFoundError, SmspaceError):
         return None
     try:
-        with ShardReader(folder, name, data=data) as reader:
+        with ShardReader.from_bytes(data, f"{folder.url}/{name}") as reader:
             if part == REGULAR:
                 m, _ = reader.regular_sampling()
                 return PartRecord.of(part, data, len(m), m.shape[1])

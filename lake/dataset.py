@@ -12,7 +12,7 @@ from smspace.common.errors import SmspaceError
 from smspace.lake.integrity import check_file
 from smspace.lake.manifest import GENERATION, MANIFEST, Manifest, load_manifest
 from smspace.lake.shards import Block, ShardReader
-from smspace.lake.store import LocalStore, Store, is_url, open_store
+from smspace.lake.store import Store, is_url, open_store
 from smspace.lake.transitions import Transitions
 
 DEFAULT_LAKE = "data/lake"
@@ -31,9 +31,7 @@ def open_lake(ref: str | Path | Store | None) -> Store:
 
 
 def _is_dataset(store: Store) -> bool:
-    if isinstance(store, LocalStore):
-        return (store.path / MANIFEST).exists() or (store.path.is_dir() and any(store.path.glob("shard-*")))
-    return store.exists(MANIFEST) or store.exists(GENERATION)
+    return store.exists(MANIFEST) or store.exists(GENERATION) or bool(store.list("shard-*"))
 
 
 def resolve_dataset(ref: str | Path | Store, lake: str | Path | Store | None = None) -> Store:
@@ -52,7 +50,7 @@ def resolve_dataset(ref: str | Path | Store, lake: str | Path | Store | None = N
 
 def canonical(store: Store) -> str:
     """How a run config records its dataset: an absolute path, or the URL."""
-    return str(store.path.resolve()) if isinstance(store, LocalStore) else store.url
+    return store.canonical()
 
 
 class Dataset:
@@ -89,7 +87,7 @@ class Dataset:
     @property
     def local_folder(self) -> Path | None:
         """The folder on this machine, or None for a dataset on object storage."""
-        return self.store.path if isinstance(self.store, LocalStore) else None
+        return self.store.local_path
 
     def _checked(self, name: str) -> str:
         try:
@@ -100,9 +98,9 @@ class Dataset:
 
     def file(self, name: str) -> Path:
         """A local file of this dataset, confined to its folder and regular (docs/FORMAT.md)."""
-        if not isinstance(self.store, LocalStore):
+        if self.store.local_path is None:
             raise SmspaceError(f"dataset {self.url} is not on this machine")
-        return self.store.path / self._checked(name)
+        return self.store.local_path / self._checked(name)
 
     def shard_paths(self) -> list[Path]:
         return [self.file(s["file"]) for s in self.manifest.shards]

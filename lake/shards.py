@@ -22,8 +22,8 @@ from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from smspace import schemas
-from smspace.common.errors import DatasetCorrupt, SmspaceError
-from smspace.lake.store import LocalStore, Store, TransferFailed
+from smspace.common.errors import DatasetCorrupt, SmspaceError, one_line
+from smspace.lake.store import Store, TransferFailed, open_store
 from smspace.lake.transitions import Transitions
 
 CHUNK_PREFIX = 1 + 8  # a chunk record's opcode and length, before its content
@@ -142,16 +142,14 @@ class ShardReader:
     The summary comes down once; then each batch is one ranged read of its chunk, located by the
     chunk index (one request per batch on object storage, never a whole-shard download)."""
 
-    def __init__(
-        self, where: Path | Store, name: str | None = None, validate_crcs: bool = True, data: bytes | None = None
-    ):
-        if name is None:  # a local path
-            where, name = LocalStore(Path(where).parent), Path(where).name
-        self.store, self.name, self._data = where, name, data
-        self.path = f"{where.url}/{name}"  # for messages
+    def __init__(self, store: Store | None, name: str, validate_crcs: bool = True, data: bytes | None = None):
+        """A shard of a folder (`store`), read by ranges; or, with `data`, its bytes already fetched
+        (`from_bytes`)."""
+        self.store, self.name, self._data = store, name, data
+        self.path = name if store is None else f"{store.url}/{name}"  # for messages
         self._validate_crcs = validate_crcs
         try:
-            self._fh = io.BytesIO(data) if data is not None else where.open(name)
+            self._fh = io.BytesIO(data) if data is not None else store.open(name)
         except FileNotFoundError:
             raise SmspaceError(f"missing shard {self.path}") from None
         try:
@@ -159,7 +157,7 @@ class ShardReader:
             summary = self._reader.get_summary()
         except Exception as e:  # whatever mcap, zstd or protobuf raise on bad bytes is corruption
             self._fh.close()
-            raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
+            raise DatasetCorrupt(f"corrupt shard {self.path}: {one_line(e, with_type=True)}") from e
         if summary is None:
             self._fh.close()
             raise DatasetCorrupt(f"corrupt shard {self.path}: no summary (truncated?)")
@@ -171,6 +169,18 @@ class ShardReader:
                 f"shard {self.path} has schema {', '.join(sorted(names))}; "
                 f"this smspace reads schema version {schemas.SCHEMA_VERSION} ({schemas.PACKAGE})"
             )
+
+    @classmethod
+    def from_bytes(cls, data: bytes, where: str, validate_crcs: bool = True) -> ShardReader:
+        """A shard whose bytes are in memory (`where` names it in messages): validate reads each
+        file once, whole, and checks it from there."""
+        return cls(None, where, validate_crcs, data)
+
+    @classmethod
+    def at(cls, path: Path | str) -> ShardReader:
+        """A shard file on this machine."""
+        path = Path(path)
+        return cls(open_store(path.parent), path.name)
 
     def close(self) -> None:
         self._fh.close()
@@ -187,7 +197,7 @@ class ShardReader:
                 if record.name == SHARD_METADATA:
                     return dict(record.metadata)
         except Exception as e:
-            raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
+            raise DatasetCorrupt(f"corrupt shard {self.path}: {one_line(e, with_type=True)}") from e
         return {}
 
     def stats(self) -> dict[str, list[float]]:
@@ -224,7 +234,7 @@ class ShardReader:
                 raise
             except Exception as e:
                 if self._data is not None or data in seen:  # bytes in memory, or read twice alike: stored so
-                    raise DatasetCorrupt(f"corrupt shard {self.path}: {_reason(e)}") from e
+                    raise DatasetCorrupt(f"corrupt shard {self.path}: {one_line(e, with_type=True)}") from e
                 seen.append(data)
         raise TransferFailed(
             f"{self.path}: the chunk at {ci.chunk_start_offset} arrived different on each of {CHUNK_READS} reads"
@@ -236,7 +246,9 @@ class ShardReader:
             try:
                 yield decode_batch(data)
             except Exception as e:  # a message that does not parse is corruption, whatever protobuf says
-                raise DatasetCorrupt(f"corrupt shard {self.path}: undecodable batch ({_reason(e)})") from e
+                raise DatasetCorrupt(
+                    f"corrupt shard {self.path}: undecodable batch ({one_line(e, with_type=True)})"
+                ) from e
 
     def block_at(self, first_index: int) -> Block:
         for block in self.blocks(first_index, first_index + 1):
@@ -250,11 +262,5 @@ class ShardReader:
                 m = np.array(msg.m, np.float32).reshape(msg.count, msg.motor_dim)
                 return m, np.array(msg.p, np.float32).reshape(msg.count, 2)
             except Exception as e:
-                raise DatasetCorrupt(f"corrupt regular sampling {self.path}: {_reason(e)}") from e
+                raise DatasetCorrupt(f"corrupt regular sampling {self.path}: {one_line(e, with_type=True)}") from e
         raise DatasetCorrupt(f"corrupt regular sampling {self.path}: no message")
-
-
-def _reason(e: Exception) -> str:
-    """An exception as a short single line, whatever library raised it."""
-    text = " ".join(str(e).split()) or "unreadable"
-    return f"{type(e).__name__}: {text[:200]}"

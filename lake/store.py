@@ -22,8 +22,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from smspace.common.errors import DatasetCorrupt, SmspaceError
-from smspace.common.locks import hold_lock
+from smspace.common.errors import DatasetCorrupt, SmspaceError, one_line
+from smspace.common.locks import HeldLock, hold_lock
 from smspace.lake.atomic import create_exclusive, remove_partials, sha256_file, write_atomic
 
 LOCAL_SCHEMES = ("", "file")
@@ -60,6 +60,33 @@ class Store(ABC):
     @property
     @abstractmethod
     def name(self) -> str: ...
+
+    @property
+    def local_path(self) -> Path | None:
+        """The folder on this machine, or None for a folder on object storage."""
+        return None
+
+    @property
+    def where(self) -> Path | str:
+        """The folder as messages and listings show it: a Path locally, else its URL."""
+        return self.local_path or self.url
+
+    def canonical(self) -> str:
+        """How a record (a run's config) names the folder: an absolute path, or the URL."""
+        return self.url
+
+    def entries(self) -> list[str]:
+        """Every name in the folder (files; and sub-folders where the store has folders)."""
+        return self.list("*")
+
+    def hold(self, name: str, busy: str) -> HeldLock | None:
+        """An exclusive lock on a file of the folder for as long as it is held, refused at once
+        with `busy` if another process holds it; None where the store has no locks (object
+        storage relies on conditional writes instead)."""
+        return None
+
+    def remove_folder(self) -> None:  # noqa: B027 - object storage has no folders to remove
+        """Remove the (emptied) folder itself where folders exist."""
 
     @abstractmethod
     def child(self, name: str) -> Store: ...
@@ -164,6 +191,22 @@ class LocalStore(Store):
     @property
     def name(self) -> str:
         return self.path.name
+
+    @property
+    def local_path(self) -> Path:
+        return self.path
+
+    def canonical(self) -> str:
+        return str(self.path.resolve())
+
+    def entries(self) -> list[str]:
+        return [p.name for p in self.path.iterdir()] if self.path.is_dir() else []
+
+    def hold(self, name: str, busy: str) -> HeldLock:
+        return hold_lock(self.path / name, busy, wait=False)
+
+    def remove_folder(self) -> None:
+        shutil.rmtree(self.path, ignore_errors=True)
 
     def child(self, name: str) -> LocalStore:
         check_name(self.url, name)
@@ -438,7 +481,7 @@ def remote_errors(url: str) -> Iterator[None]:
             raise
         if isinstance(e, PermissionError):
             raise SmspaceError(
-                f"{url}: access denied ({_short(e)}); check the credentials (AWS_ACCESS_KEY_ID…)"
+                f"{url}: access denied ({one_line(e)}); check the credentials (AWS_ACCESS_KEY_ID…)"
             ) from None
         damaged = _damaged_transfer(e)
         if damaged:
@@ -471,12 +514,8 @@ TRANSFER_ERRORS = ("FlexibleChecksumError", "ResponseStreamingError", "Incomplet
 def _damaged_transfer(e: BaseException) -> str | None:
     for link in _chain(e):
         if type(link).__name__ in TRANSFER_ERRORS:
-            return f"{type(link).__name__}: {_short(link)}"
+            return f"{type(link).__name__}: {one_line(link)}"
     return None
-
-
-def _short(e: BaseException) -> str:
-    return " ".join(str(e).split())[:200] or type(e).__name__
 
 
 def _missing_bucket(e: BaseException) -> bool:
@@ -488,15 +527,18 @@ def _explain(e: BaseException) -> str:
     if "Credential" in name or "InvalidAccessKeyId" in repr(e) or "SignatureDoesNotMatch" in repr(e):
         return f"access denied ({name}); check the credentials (AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY)"
     if "Connect" in name or "Endpoint" in name:
-        return f"cannot reach the storage endpoint ({_short(e)}); check AWS_ENDPOINT_URL"
+        return f"cannot reach the storage endpoint ({one_line(e)}); check AWS_ENDPOINT_URL"
     if "Timeout" in name or isinstance(e, TimeoutError):
         return f"the storage endpoint did not answer in time ({name}; SMSPACE_S3_READ_TIMEOUT sets the limit)"
-    return f"{name}: {_short(e)}"
+    return f"{name}: {one_line(e)}"
 
 
-def open_store(ref: str | Path) -> Store:
+def open_store(ref: str | Path | Store) -> Store:
     """A folder of the lake from a path or URL: plain paths and file:// stay local (rename-based
-    writes, locks), any other fsspec URL is object storage (s3:// needs `pip install smspace[s3]`)."""
+    writes, locks), any other fsspec URL is object storage (s3:// needs `pip install smspace[s3]`).
+    A Store is returned as it is."""
+    if isinstance(ref, Store):
+        return ref
     if isinstance(ref, Path) or not is_url(ref):
         return LocalStore(Path(ref))
     scheme = ref.split("://", 1)[0].lower()
@@ -516,7 +558,7 @@ def open_store(ref: str | Path) -> Store:
         hint = "pip install 'smspace[s3]'" if scheme in ("s3", "s3a") else f"install the fsspec package for {scheme}://"
         raise SmspaceError(f"{ref}: the {scheme}:// scheme needs a package that is not installed; {hint}") from None
     except ValueError as e:
-        raise SmspaceError(f"{ref}: unknown storage scheme {scheme!r} ({_short(e)})") from None
+        raise SmspaceError(f"{ref}: unknown storage scheme {scheme!r} ({one_line(e)})") from None
     if not root.strip("/"):
         raise SmspaceError(f"{ref}: give a bucket (and optionally a prefix), e.g. s3://bucket/lake")
     return RemoteStore(fs, root, f"{scheme}://{root}")

@@ -103,7 +103,7 @@ def validate_dataset(folder: Store | Path) -> list[str]:
         expected_index = shard["first_index"]
         count = 0
         try:
-            with ShardReader(folder, shard["file"], data=data) as reader:
+            with ShardReader.from_bytes(data, f"{folder.url}/{shard['file']}") as reader:
                 for block in reader.blocks():
                     tr = block.transitions
                     if block.first_index != expected_index:
@@ -142,7 +142,7 @@ def _regular_problems(folder: Store, manifest) -> list[str]:
     if hashlib.sha256(data).hexdigest() != reg["sha256"]:
         return [f"{where}: sha256 differs from the manifest"]
     try:
-        with ShardReader(folder, reg["file"], data=data) as reader:
+        with ShardReader.from_bytes(data, f"{folder.url}/{reg['file']}") as reader:
             m, _ = reader.regular_sampling()
     except SmspaceError as e:
         return [f"{where}: {e}"]

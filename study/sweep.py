@@ -15,7 +15,7 @@ from typing import Any
 
 from smspace.common.bounded import run_within
 from smspace.common.errors import SmspaceError
-from smspace.common.executors import WorkerDied, import_ray, in_processes, in_ray, ray_session
+from smspace.common.executors import WorkerDied, import_ray, open_executor
 from smspace.datagen.generate import generate
 from smspace.datagen.setups import get_setup
 from smspace.lake.catalog import check_lake
@@ -210,29 +210,21 @@ def _mark_stopped(runs: list[RunDir], line: str) -> None:
 def run_ensembles(
     chunks: list[tuple[list[RunDir], bool]], executor: str, workers: int, threads: int, device: str
 ) -> None:
-    """Train every ensemble: in this process when there is one (or one worker), else one spawned
-    process per ensemble up to `workers` at a time, or one Ray task per ensemble."""
-    if executor not in ("local", "ray"):
-        raise SmspaceError(f"unknown --executor {executor!r} (local or ray)")
-    if executor == "local" and (workers <= 1 or len(chunks) <= 1):
-        for runs, resume in chunks:
-            train_ensemble(runs, resume=resume, threads=threads)
-        return
-    for runs, _ in chunks:  # the processes that train them claim them
+    """Train every ensemble where the executor puts it (common/executors.py): in this process for
+    one worker, else one spawned process per ensemble up to `workers` at a time, or a Ray task
+    each (never retried by Ray: a task started again would not know how far it got; re-running
+    the sweep resumes)."""
+    for runs, _ in chunks:  # whoever trains them claims them, this process included
         for run in runs:
             run.release()
-    tasks = [([str(run.path) for run in runs], resume, threads) for runs, resume in chunks]
-    if executor == "local":
-        try:
-            for _ in in_processes(train_chunk, tasks, workers):
+    here = executor == "local" and (workers <= 1 or len(chunks) <= 1)  # trained in this process: its bar shows
+    tasks = [([str(run.path) for run in runs], resume, threads, here) for runs, resume in chunks]
+    gpus = 1 if device.startswith("cuda") else 0
+    try:
+        with open_executor(executor, workers, num_cpus=threads, num_gpus=gpus, max_retries=0) as ex:
+            for _ in ex.map(train_chunk, tasks):
                 pass
-        except WorkerDied as e:
-            line = f"{e}; the runs keep their last checkpoints: the same command resumes them"
-            _mark_stopped([run for runs, _ in chunks for run in runs], line)
-            raise WorkerDied(line) from None
-        return
-    with ray_session(workers) as ray:
-        # no retry: a task started again would not know how far it got; re-running the sweep resumes
-        remote = ray.remote(num_cpus=threads, num_gpus=1 if device.startswith("cuda") else 0, max_retries=0)
-        for _ in in_ray(ray, remote(train_chunk), tasks):
-            pass
+    except WorkerDied as e:
+        line = f"{e}; the runs keep their last checkpoints: the same command resumes them"
+        _mark_stopped([run for runs, _ in chunks for run in runs], line)
+        raise WorkerDied(line) from None

@@ -128,7 +128,7 @@ def test_shard_of_another_schema_version(lake_copy):
     from smspace.lake.shards import ShardReader
 
     with pytest.raises(SmspaceError, match=r"shard-00000.mcap has schema smspace.v2"):
-        ShardReader(shard)  # and a shard opened on its own says what it is
+        ShardReader.at(shard)  # and a shard opened on its own says what it is
 
 
 def test_manifest_of_another_schema_version(lake_copy):

@@ -11,7 +11,6 @@ import pytest
 from click.testing import CliRunner
 
 from smspace.lake.shards import Block, ShardReader, shard_bytes
-from smspace.lake.store import LocalStore
 from smspace.lake.transitions import Transitions
 from smspace.train.cli import main as smtrain_main
 
@@ -27,7 +26,7 @@ def smtrain(*args):
 def forged(original: bytes, folder: Path) -> bytes:
     """A valid shard of the same size whose s_t1 is s_t (a predictable MEM), CRCs recomputed and
     padded into its metadata: nothing but its content tells it apart."""
-    with ShardReader(LocalStore(folder), SHARD, data=original) as reader:
+    with ShardReader.from_bytes(original, f"{folder}/{SHARD}") as reader:
         metadata = reader.metadata()
         blocks = [
             Block(b.first_index, Transitions(**(b.transitions.columns() | {"s_t1": b.transitions.s_t})))

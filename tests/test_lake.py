@@ -132,7 +132,7 @@ def test_killed_generation_resumes_to_identical_bytes(tmp_path):
     assert 5 <= len(survivors) < 98, "the kill must land mid-generation"
     assert not (folder / "manifest.json").exists()
     for path in survivors:  # whatever carries a final name is complete
-        with ShardReader(path) as reader:
+        with ShardReader.at(path) as reader:
             assert sum(len(b.transitions) for b in reader.blocks()) == 4096
     listed = smgen("ls", "--lake", killed_lake).output
     assert "grid-seed4-MME" not in listed

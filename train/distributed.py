@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import torch
 import torch.distributed as dist
 
-from smspace.common.errors import SmspaceError
+from smspace.common.errors import SmspaceError, one_line
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ def peer_errors(ranks: Ranks) -> Iterator[None]:
     except (RuntimeError, dist.DistError) as e:
         if not ranks.distributed:
             raise
-        first = " ".join(str(e).split())[:160]
+        first = one_line(e, limit=160)
         raise PeerLost(
             f"rank {ranks.rank} lost another rank of this run ({first}); the run keeps its last checkpoint"
         ) from None
@@ -82,9 +82,7 @@ def join_from_environment(device: str) -> Ranks:
             else:
                 dist.init_process_group(backend)
         except Exception as e:
-            raise SmspaceError(
-                f"cannot join the torchrun process group ({backend}): {' '.join(str(e).split())[:200]}"
-            ) from None
+            raise SmspaceError(f"cannot join the torchrun process group ({backend}): {one_line(e)}") from None
     if device.startswith("cuda"):
         torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))
     return Ranks(dist.get_rank(), dist.get_world_size())

@@ -11,7 +11,6 @@ import json
 import os
 import pickle
 import re  # only for its exception type: checkpoints load with weights_only=True
-import shutil
 import socket
 import uuid
 from dataclasses import replace
@@ -24,8 +23,8 @@ import pyarrow.parquet as pq
 import torch
 
 from smspace.common.errors import SmspaceError
-from smspace.common.locks import HeldLock, hold_lock
-from smspace.lake.store import LocalStore, Store, WriteConflict, open_store
+from smspace.common.locks import HeldLock
+from smspace.lake.store import Store, WriteConflict, open_store
 from smspace.train.config import TrainConfig
 
 CONFIG = "config.json"
@@ -87,7 +86,7 @@ class RunDir:
     @property
     def path(self) -> Path | str:
         """The folder (a Path locally, else its URL), for messages and listings."""
-        return self.store.path if isinstance(self.store, LocalStore) else self.store.url
+        return self.store.where
 
     @property
     def name(self) -> str:
@@ -95,7 +94,7 @@ class RunDir:
 
     @property
     def local_path(self) -> Path | None:
-        return self.store.path if isinstance(self.store, LocalStore) else None
+        return self.store.local_path
 
     def _embeddings(self) -> Store:
         return self.store.child(EMBEDDINGS)
@@ -104,9 +103,8 @@ class RunDir:
         """Become the one process training this run; another one gets a clear refusal. Local
         folders have a lock; on object storage every later write of this process is conditional on
         the versions seen here, so a second writer makes one of the two stop in one line."""
-        if self._lock is None and isinstance(self.store, LocalStore):
-            busy = f"{self.path} is being trained by another process"
-            self._lock = hold_lock(self.store.path / LOCK, busy, wait=False)
+        if self._lock is None:
+            self._lock = self.store.hold(LOCK, f"{self.path} is being trained by another process")
         if self._versions is None:
             found = self.store.fingerprints("*") | {
                 f"{EMBEDDINGS}/{name}": tag for name, tag in self._embeddings().fingerprints("*").items()
@@ -179,7 +177,7 @@ class RunDir:
             raise SmspaceError(f"output {run.path} is a file, not a folder")
         if run.store.exists(CONFIG) and not overwrite:
             raise SmspaceError(f"{run.path} already holds a run: pass --resume to continue it or --overwrite")
-        if not overwrite and any(name != LOCK for name in _entries(run.store)):
+        if not overwrite and any(name != LOCK for name in run.store.entries()):
             raise SmspaceError(f"{run.path} is not empty and holds no run; choose another --out")
         return run
 
@@ -199,8 +197,7 @@ class RunDir:
         embeddings = self._embeddings()
         for name in embeddings.list("*"):
             self._delete(name, in_embeddings=True)
-        if isinstance(embeddings, LocalStore):
-            shutil.rmtree(embeddings.path, ignore_errors=True)
+        embeddings.remove_folder()
         self.store.remove_partials()
 
     def _read(self, name: str, store: Store | None = None) -> bytes:
@@ -359,13 +356,6 @@ class RunDir:
 
 def _config_bytes(cfg: TrainConfig) -> bytes:
     return (json.dumps(cfg.to_dict(), indent=1) + "\n").encode()
-
-
-def _entries(store: Store) -> list[str]:
-    """Every name in a folder: files, and locally folders too."""
-    if isinstance(store, LocalStore):
-        return [p.name for p in store.path.iterdir()] if store.path.is_dir() else []
-    return store.list("*")
 
 
 def _parquet(data: bytes) -> pa.Table:
