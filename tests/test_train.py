@@ -95,7 +95,8 @@ def test_model_defaults_are_the_paper_s(tmp_path):
 
 
 def test_learning_rate_schedule():
-    from smspace.train.config import TrainConfig, learning_rate
+    from smspace.train.config import TrainConfig
+    from smspace.train.loop import learning_rate
 
     cfg = TrainConfig(dataset="x")
     assert cfg.lr_decay_steps == 80_000

@@ -7,8 +7,6 @@ import json
 import math
 import os
 import sys
-from collections.abc import Callable
-from dataclasses import MISSING, Field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -26,116 +24,20 @@ from smspace.common.cli import (
 from smspace.common.errors import Interrupted, SmspaceError
 from smspace.common.rerun_output import view_options
 from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
-from smspace.train.config import MAX_LAYERS, MAX_WIDTH
+from smspace.train.options import (
+    config_from_flags,
+    config_options,
+    flag_fields_of_config,
+    flag_name,
+    given_fields,
+    on_command_line,
+    setup_choices,
+)
 
 if TYPE_CHECKING:
-    from smspace.train.config import TrainConfig
+    pass
 
 RUNS = "runs"  # a folder or an fsspec URL (s3://bucket/runs)
-
-
-def int_list(ctx, param, value: str | None) -> list[int] | None:
-    if value is None:
-        return None
-    try:
-        sizes = [int(v) for v in value.split(",")]  # "150,,50" is a typo, not two layers
-    except ValueError:
-        raise click.BadParameter(f"expected comma-separated layer sizes such as 150,100,50, got {value!r}") from None
-    if not sizes or min(sizes) <= 0:
-        raise click.BadParameter(f"expected positive layer sizes, got {value!r}")
-    if len(sizes) > MAX_LAYERS or max(sizes) > MAX_WIDTH:
-        raise click.BadParameter(f"at most {MAX_LAYERS} layers of at most {MAX_WIDTH} units, got {value!r}")
-    return sizes
-
-
-def json_object(ctx, param, value: str | None) -> dict | None:
-    if value is None:
-        return None
-    try:
-        parsed = json.loads(value)
-    except json.JSONDecodeError:
-        raise click.BadParameter(f"expected a JSON object such as '{{\"width\": 64}}', got {value!r}") from None
-    if not isinstance(parsed, dict):
-        raise click.BadParameter(f"expected a JSON object, got {value!r}")
-    return parsed
-
-
-def _model_names() -> tuple[str, ...]:
-    from smspace.train.model import model_names
-
-    return model_names()
-
-
-class PositiveFinite(click.ParamType):
-    """A float > 0 that is a number (click's FloatRange lets NaN and inf through)."""
-
-    name = "float"
-
-    def convert(self, value, param, ctx) -> float:
-        try:
-            x = float(value)
-        except (TypeError, ValueError):
-            self.fail(f"{value!r} is not a number", param, ctx)
-        if not (math.isfinite(x) and x > 0):
-            self.fail(f"{value!r} is not a finite positive number", param, ctx)
-        return x
-
-
-POSITIVE_FINITE = PositiveFinite()
-
-
-def _setup_names() -> tuple[str, ...]:
-    from smspace.datagen.setups import setup_names  # the command line composes generation and training
-
-    return setup_names()
-
-
-def _flag_name(f: Field) -> str:
-    return f.metadata["flag"] or "--" + f.name.replace("_", "-")
-
-
-def config_options(exclude: tuple[str, ...] = ()) -> Callable:
-    """One click option per TrainConfig flag field: names, defaults and help come from the config."""
-    from smspace.train.config import flag_fields
-
-    def decorate(fn: Callable) -> Callable:
-        for f in reversed(flag_fields()):
-            if f.name in exclude:
-                continue
-            default = f.default_factory() if f.default is MISSING else f.default
-            help_text = f.metadata["help"]
-            if isinstance(default, list):
-                shown = f" [default: {','.join(map(str, default))}]" if default else ""
-                option = click.option(_flag_name(f), f.name, callback=int_list, default=None, help=help_text + shown)
-            elif isinstance(default, dict):
-                option = click.option(_flag_name(f), f.name, callback=json_object, default=None, help=help_text)
-            elif f.name == "model":
-                option = click.option(
-                    _flag_name(f), f.name, type=click.Choice(_model_names()), default=default, show_default=True,
-                    help=help_text,
-                )  # fmt: skip
-            else:
-                low, high = f.metadata["min"], f.metadata["max"]
-                bounded = low is not None or high is not None
-                if isinstance(default, float):
-                    kind = POSITIVE_FINITE
-                else:
-                    kind = click.IntRange(low, high) if isinstance(default, int) and bounded else type(default)
-                option = click.option(
-                    _flag_name(f), f.name, type=kind, default=default, show_default=True, help=help_text
-                )
-            fn = option(fn)
-        return fn
-
-    return decorate
-
-
-def config_from_flags(flags: dict) -> TrainConfig:
-    """A TrainConfig from parsed flags; flags left out (or layer lists not given) keep the config's defaults."""
-    from smspace.train.config import TrainConfig, flag_fields
-
-    given = {f.name: flags[f.name] for f in flag_fields() if flags.get(f.name) is not None}
-    return TrainConfig(dataset="", **given)
 
 
 @click.group(name="smtrain", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
@@ -174,7 +76,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     from smspace.train.run_dir import RunDir
 
     ctx = click.get_current_context()
-    given = [_flag_name(f) for f in _flag_fields() if _on_command_line(ctx, f.name)]
+    given = [flag_name(f) for f in flag_fields_of_config() if f.name in given_fields(ctx)]
     template = config_from_flags(flags)
     if nproc > 1 and STORE_ENV not in os.environ:  # this process only launches the ranks
         if "WORLD_SIZE" in os.environ:
@@ -222,16 +124,6 @@ def _resume_hint(where: str, world: int):
         raise Interrupted(f"interrupted; {kept}: smtrain fit --resume {where}{nproc}") from None
 
 
-def _flag_fields():
-    from smspace.train.config import flag_fields
-
-    return flag_fields()
-
-
-def _on_command_line(ctx: click.Context, name: str) -> bool:
-    return ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
-
-
 def _attempt(action):
     """(what the action returned, None), or (None, its error): the error is raised only once every
     rank knows about it."""
@@ -243,7 +135,7 @@ def _attempt(action):
 
 @main.command()
 @click.option(
-    "--setup", "setup_name", type=click.Choice(_setup_names()), required=True, help="A built-in or registered setup."
+    "--setup", "setup_name", type=click.Choice(setup_choices()), required=True, help="A built-in or registered setup."
 )
 @click.option("--modes", default="MEM,MM,MME", show_default=True, help="Comma-separated modes, or all.")
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
@@ -322,7 +214,9 @@ def sweep(
             overwrite,
             executor,
             workers or default_workers(),
-            explicit=frozenset(f.name for f in _flag_fields() if _on_command_line(click.get_current_context(), f.name)),
+            explicit=frozenset(
+                f.name for f in flag_fields_of_config() if on_command_line(click.get_current_context(), f.name)
+            ),
             notify=lambda line: click.echo(line, err=True),
         )
     for run in runs:

@@ -202,9 +202,3 @@ def unit_count(manifest) -> int:
     """The loader's units of work (one batch message each) in a dataset."""
     batch = manifest.config["batch_size"]
     return sum(-(-shard["transitions"] // batch) for shard in manifest.shards)
-
-
-def learning_rate(cfg: TrainConfig, step: int) -> float:
-    """Linear from lr_start to lr_end over lr_decay_steps, then constant (docs/MODEL.md §3)."""
-    frac = min(step, cfg.lr_decay_steps) / cfg.lr_decay_steps
-    return cfg.lr_start + (cfg.lr_end - cfg.lr_start) * frac

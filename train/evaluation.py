@@ -1,9 +1,9 @@
-"""What an evaluation looks at and how it is written into a run folder (shared by fit and sweep)."""
+"""What an evaluation looks at: the regular sampling and a fixed set of transitions, and the
+scores of h on it (shared by fit and sweep; RunDir.write_evaluation records them)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import torch
@@ -11,7 +11,6 @@ import torch
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
 from smspace.metrics import spatial_scores
-from smspace.train.run_dir import PREDICTED, TRUE, RunDir
 
 N_PREDICTIONS = 16  # predicted vs true s_t1 kept per evaluation, for viewers and reports
 
@@ -49,24 +48,3 @@ class EvalData:
 def scores_row(h: np.ndarray, p: np.ndarray, eval_loss: float) -> dict[str, float]:
     scores = spatial_scores(h, p)
     return {"eval_loss": eval_loss, "d_topo": scores.d_topo, "d_metric": scores.d_metric}
-
-
-def write_evaluation(
-    run: RunDir,
-    rows: list[dict[str, Any]],
-    row: dict[str, Any],
-    h: np.ndarray,
-    data: EvalData,
-    pred: np.ndarray,
-    checkpoint: dict[str, Any],
-    keep_previous: bool = False,
-) -> None:
-    """Metrics row, h with p, predictions, then the checkpoint: in this order, so a kill between
-    two writes leaves the checkpoint at or behind the metrics (resume trims them back)."""
-    rows.append(row)
-    step = row["step"]
-    extra = {PREDICTED: pred} | ({TRUE: data.s_t1[:N_PREDICTIONS].cpu().numpy()} if step == 0 else {})
-    run.write_embeddings(step, h, data.p_regular, extra)
-    run.write_metrics(rows)
-    run.save_checkpoint(checkpoint, keep_previous)
-    run.set_status("running", step)

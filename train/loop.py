@@ -24,9 +24,9 @@ from tqdm import tqdm
 from smspace.common.bounded import run_within
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
-from smspace.train.config import TrainConfig, learning_rate
+from smspace.train.config import TrainConfig
 from smspace.train.distributed import SINGLE, Ranks, mean_over_ranks, per_rank_batch
-from smspace.train.evaluation import EvalData, scores_row, write_evaluation
+from smspace.train.evaluation import N_PREDICTIONS, EvalData, scores_row
 from smspace.train.loader import TransitionStream
 from smspace.train.run_dir import RunDir
 
@@ -70,6 +70,12 @@ class Member:
     data: EvalData
     rows: list[dict[str, Any]] = field(default_factory=list)
     elapsed: float = 0.0
+
+
+def learning_rate(cfg: TrainConfig, step: int) -> float:
+    """Linear from lr_start to lr_end over lr_decay_steps, then constant (docs/MODEL.md §3)."""
+    frac = min(step, cfg.lr_decay_steps) / cfg.lr_decay_steps
+    return cfg.lr_start + (cfg.lr_end - cfg.lr_start) * frac
 
 
 def resolve_device(name: str) -> torch.device:
@@ -173,7 +179,9 @@ def train(
             }
             state = {**learner.state_of(r, lr), "stream": m.stream.state_dict(), "step": step, "elapsed_s": m.elapsed}
             state[LAYOUT] = "in-out"
-            write_evaluation(m.run, m.rows, row, hs[r], m.data, preds[r], state, keep_previous=count > 1)
+            m.rows.append(row)
+            true = m.data.s_t1[:N_PREDICTIONS].cpu().numpy() if step == 0 else None  # the targets, once
+            m.run.write_evaluation(m.rows, hs[r], m.data.p_regular, preds[r], true, state, keep_previous=count > 1)
 
     def diverged(at: int, losses: np.ndarray) -> TrainingFailed:
         bad = ", ".join(members[r].run.name for r in np.flatnonzero(~np.isfinite(losses)))

@@ -270,6 +270,26 @@ class RunDir:
         for name, value in extra.items():
             self._write(array_file(name, step), _npy_bytes(value), in_embeddings=True)
 
+    def write_evaluation(
+        self,
+        rows: list[dict[str, Any]],
+        h: np.ndarray,
+        p: np.ndarray,
+        pred: np.ndarray,
+        true: np.ndarray | None,
+        checkpoint: dict[str, Any],
+        keep_previous: bool = False,
+    ) -> None:
+        """An evaluation's files: h with p and the predictions, the metrics (`rows`, its row last),
+        then the checkpoint, in this order, so that a kill between two writes leaves the checkpoint
+        at or behind the metrics (resume trims them back to it); then the status."""
+        step = rows[-1]["step"]
+        extra = {PREDICTED: pred} | ({TRUE: true} if true is not None else {})
+        self.write_embeddings(step, h, p, extra)
+        self.write_metrics(rows)
+        self.save_checkpoint(checkpoint, keep_previous)
+        self.set_status("running", step)
+
     def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
         table = _parquet(self._read(embedding_file(step), self._embeddings()))
         return _from_fixed_list(table["h"]), _from_fixed_list(table["p"])
