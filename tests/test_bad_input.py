@@ -159,7 +159,7 @@ def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):
 
     monkeypatch.setattr(atomic, "open", full_disk_open, raising=False)
     line = one_error_line(
-        smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 5000, "--lake", tmp_path)
+        smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 5000, "--workers", 1, "--lake", tmp_path)
     )
     assert "No space left on device" in line and "shard-00000.mcap" in line
     folder = tmp_path / "grid-seed0-MM"

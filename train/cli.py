@@ -8,7 +8,6 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import click
 
@@ -23,6 +22,7 @@ from smspace.common.cli import (
 )
 from smspace.common.errors import Interrupted, SmspaceError
 from smspace.common.rerun_output import view_options
+from smspace.datagen.setups import setup_names  # the command line composes generation and training
 from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
 from smspace.train.options import (
     config_from_flags,
@@ -31,11 +31,7 @@ from smspace.train.options import (
     flag_name,
     given_fields,
     on_command_line,
-    setup_choices,
 )
-
-if TYPE_CHECKING:
-    pass
 
 RUNS = "runs"  # a folder or an fsspec URL (s3://bucket/runs)
 
@@ -135,7 +131,7 @@ def _attempt(action):
 
 @main.command()
 @click.option(
-    "--setup", "setup_name", type=click.Choice(setup_choices()), required=True, help="A built-in or registered setup."
+    "--setup", "setup_name", type=click.Choice(setup_names()), required=True, help="A built-in or registered setup."
 )
 @click.option("--modes", default="MEM,MM,MME", show_default=True, help="Comma-separated modes, or all.")
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)

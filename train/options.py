@@ -68,12 +68,6 @@ class PositiveFinite(click.ParamType):
 POSITIVE_FINITE = PositiveFinite()
 
 
-def setup_choices() -> tuple[str, ...]:
-    from smspace.datagen.setups import setup_names  # the command line composes generation and training
-
-    return setup_names()
-
-
 def flag_name(f: Field) -> str:
     return f.metadata["flag"] or "--" + f.name.replace("_", "-")
 
