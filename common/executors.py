@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import queue
 import signal
 import subprocess
 import sys
@@ -108,6 +109,25 @@ class Executor:
             return fn(*args)
         return ray_get(self._ray, self._ray.remote(**self._options)(fn).remote(*args))
 
+    @contextlib.contextmanager
+    def channel(self) -> Iterator[Any]:
+        """A queue the tasks can `put` small messages on (progress) and this process reads with
+        `drain_channel`: a plain queue here, a multiprocessing manager's for a spawn pool, Ray's
+        for Ray tasks. Passed to the tasks as an argument."""
+        if self._ray is not None:
+            from ray.util.queue import Queue
+
+            ray_queue = Queue(actor_options={"num_cpus": 0})
+            try:
+                yield ray_queue
+            finally:
+                ray_queue.shutdown(force=True)
+        elif self.workers <= 1:
+            yield queue.SimpleQueue()
+        else:
+            with multiprocessing.get_context("spawn").Manager() as manager:
+                yield manager.Queue()
+
     def map(self, fn: Callable, tasks: list[tuple]) -> Iterator[tuple[tuple, Any]]:
         """(task, fn(*task)) in completion order: in this process for one worker or one task, else
         in `workers` spawned processes, or as Ray tasks."""
@@ -131,6 +151,15 @@ def open_executor(kind: str, workers: int, **ray_options: Any) -> Iterator[Execu
             yield Executor(workers, ray, ray_options)
     else:
         raise SmspaceError(f"unknown --executor {kind!r} (one of {', '.join(EXECUTORS)})")
+
+
+def drain_channel(channel: Any) -> list[Any]:
+    """Every message waiting on an Executor.channel, without blocking."""
+    items = []
+    with contextlib.suppress(queue.Empty, EOFError, OSError, ConnectionError):
+        while True:
+            items.append(channel.get_nowait())
+    return items
 
 
 def import_ray(flag: str = "--executor ray"):

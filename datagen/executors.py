@@ -8,14 +8,12 @@ cluster is Ray's job (or a SLURM array's, through --rank/--world-size).
 from __future__ import annotations
 
 import contextlib
-import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-from tqdm import tqdm
-
 from smspace.common.executors import WorkerDied
 from smspace.common.executors import open_executor as shared_executor
+from smspace.common.progress import Progress
 from smspace.datagen.parts import PartRecord, preflight, write_part
 from smspace.lake.manifest import GenConfig
 from smspace.lake.store import Store
@@ -54,16 +52,17 @@ def open_executor(executor: str, setup: str, options: ExecutorOptions) -> Iterat
 def _progress(run: Callable[[list[Task]], Iterator[tuple[Task, PartRecord]]]) -> Runner:
     def runner(tasks: list[Task]) -> list[tuple[Task, PartRecord]]:
         total = sum(_transitions(t) for t in tasks)
-        with tqdm(total=total, unit="tr", unit_scale=True, disable=None, file=sys.stderr, desc="generating") as bar:
-            done = []
-            try:
-                for task, record in run(tasks):
-                    done.append((task, record))
-                    bar.update(_transitions(task))
-            except WorkerDied as e:
-                raise WorkerDied(
-                    f"{e}; the parts already stored are kept: the same command completes the datasets"
-                ) from None
-            return done
+        bar = Progress("generating", total, "transition", enabled=total > 0)
+        done = []
+        try:
+            for task, record in run(tasks):
+                done.append((task, record))
+                bar.update(_transitions(task))
+        except WorkerDied as e:
+            kept = "the parts already stored are kept: the same command completes the datasets"
+            raise WorkerDied(f"{e}; {kept}") from None
+        finally:
+            bar.close()
+        return done
 
     return runner

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The studies of docs/REPRODUCTION.md, exactly as they were run on the 2-core machine. Every sweep
-# is resumable: re-running a stage skips finished runs and resumes the others from their checkpoints.
+# is a study file under studies/ and is resumable: re-running a stage skips finished runs and
+# resumes the others from their checkpoints. `smtrain sweep studies/<stage>.toml --dry-run` budgets one.
 #
 # Usage: bash scripts/reproduce.sh STAGE [LAKE] [RUNS]     (defaults data/lake and runs/repro)
 #   grid        3 modes × 10 worlds × 100000 steps, N_h = 3 (about 90 min of one core)
@@ -24,32 +25,21 @@ LAKE=${2:-data/lake}
 RUNS=${3:-runs/repro}
 BIN=.venv/bin
 CORES=$(nproc)
-SWEEP=("$BIN/smtrain" sweep --lake "$LAKE" --workers "$CORES" --gen-workers "$CORES")
+# Each study is a file under studies/ (what it computes); this script only says where it runs.
+study() { "$BIN/smtrain" sweep "studies/$1.toml" --lake "$LAKE" --out "$RUNS/$1" --workers "$CORES" --gen-workers "$CORES"; }
 
-grid() { "${SWEEP[@]}" --setup grid --worlds 10 --seed 0 --steps 100000 --out "$RUNS/grid"; }
-arm() {
-  "$BIN/smgen" generate --setup arm --mode all --worlds 3 --seed 0 --lake "$LAKE" --workers "$CORES"
-  "${SWEEP[@]}" --setup arm --worlds 3 --seed 0 --steps 100000 --out "$RUNS/arm"
-}
-grid_nh25() { "${SWEEP[@]}" --setup grid --worlds 10 --seed 0 --steps 100000 --nh 25 --out "$RUNS/grid-nh25"; }
-grid6() { "${SWEEP[@]}" --setup grid6 --worlds 3 --seed 0 --steps 30000 --out "$RUNS/grid6"; }
-arm_more() { "${SWEEP[@]}" --modes MEM,MM --setup arm --worlds 3 --seed 3 --steps 100000 --out "$RUNS/arm-more"; }
-# 75000 transitions per arm6 dataset, a quarter of the setup's 300000, and an evaluation every 3000
-# steps: on two cores, rendering 2.7 M images takes 100 min and each evaluation over the 15625
-# regular states 5 s per run (30000 steps of batch 100 still visit each transition 40 times).
-arm6() {
-  "${SWEEP[@]}" --setup arm6 --worlds 3 --seed 0 --steps 30000 --transitions 75000 --eval-every 3000 \
-    --out "$RUNS/arm6"
-}
+grid() { study grid; }
+arm() { study arm; }
+grid_nh25() { study grid-nh25; }
+grid6() { study grid6; }
+arm_more() { study arm-more; }
+arm6() { study arm6; }
 full() {
   : "${RAY_ADDRESS:?full runs on a Ray cluster: set RAY_ADDRESS}"
-  local ray=(--executor ray --workers "${WORKERS:-64}")
-  for setup in grid grid6 arm arm6; do
-    "$BIN/smgen" generate --setup "$setup" --mode all --worlds 50 --seed 0 --lake "$LAKE" "${ray[@]}"
-    "$BIN/smtrain" sweep --setup "$setup" --worlds 50 --steps 100000 --lake "$LAKE" --out "$RUNS/$setup" "${ray[@]}"
+  for name in grid grid6 arm arm6 grid-nh25; do
+    "$BIN/smtrain" sweep "studies/full/$name.toml" --lake "$LAKE" --out "$RUNS/$name" --workers "${WORKERS:-64}"
   done
-  "$BIN/smtrain" sweep --setup grid --worlds 50 --steps 100000 --nh 25 --lake "$LAKE" --out "$RUNS/grid-nh25" "${ray[@]}"
-  echo "reports: $BIN/smtrain report $RUNS/<study>/<run>... --out docs/reproduction/<study> (run folders: smtrain ls --runs $RUNS/<study>)"
+  echo "reports: $BIN/smtrain report $RUNS/<study> --out docs/reproduction/<study>"
 }
 arm_ambiguity() {
   "$BIN/python" scripts/arm_ambiguity.py --seeds 0-5 --lake data/ambiguity-lake \

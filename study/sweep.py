@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,7 @@ from smspace.datagen.setups import get_setup
 from smspace.lake.catalog import check_lake
 from smspace.lake.manifest import load_manifest
 from smspace.lake.store import Store, open_store
+from smspace.study.monitor import StudyMonitor, monitored
 from smspace.train.config import TrainConfig
 from smspace.train.ensemble import train_ensemble
 from smspace.train.run_dir import CONFIG, RunDir
@@ -140,15 +141,60 @@ def sweep(
 ) -> list[RunDir]:
     """`explicit`: the training flags the user gave; `notify`: where a change of the study's terms
     (an extension) is said, before anything is generated or trained."""
-    spec = get_setup(setup)
-    n = spec.default_transitions if transitions is None else transitions
-    out = out if isinstance(out, Store) else open_store(out)
-    template, change = plan_study(template, setup, n, out, overwrite, explicit)
+    study = SweepPlan(setup, modes, world_seeds, template, transitions, explicit)
     if executor == "ray":
         import_ray()  # a missing Ray is said before any dataset is generated
-    if change:
-        notify(change)
-    results = generate(lake, setup, modes, world_seeds, n, spec.default_shard_size, workers=gen_workers, notify=notify)
+    runs, chunks = prepare(study, lake, out, gen_workers, max_ensemble, overwrite, workers, notify)
+    run_ensembles(chunks, executor, workers, template.threads, template.device)
+    return runs
+
+
+@dataclass(frozen=True)
+class SweepPlan:
+    """What one sweep folder holds: the datasets (setup × modes × worlds) and the runs' template."""
+
+    setup: str
+    modes: list[str]
+    world_seeds: list[int]
+    template: TrainConfig
+    transitions: int | None = None
+    explicit: frozenset[str] = frozenset()
+
+    @property
+    def n_transitions(self) -> int:
+        return get_setup(self.setup).default_transitions if self.transitions is None else self.transitions
+
+
+def check_terms(study: SweepPlan, out: Store, overwrite: bool) -> tuple[TrainConfig, str | None]:
+    """The template the sweep in `out` trains with, and the line that says how its terms change;
+    refused before anything is generated if they may not."""
+    return plan_study(study.template, study.setup, study.n_transitions, out, overwrite, study.explicit)
+
+
+def prepare(
+    study: SweepPlan,
+    lake: Store | str,
+    out: Store | Path | str,
+    gen_workers: int,
+    max_ensemble: int,
+    overwrite: bool,
+    workers: int,
+    notify: Callable[[str], None],
+    checked: TrainConfig | None = None,
+) -> tuple[list[RunDir], list[tuple[list[RunDir], bool]]]:
+    """Generate the missing datasets and plan the runs: (every run, the ensembles still to train,
+    each with whether it resumes). `checked`: the template `check_terms` already returned."""
+    out = out if isinstance(out, Store) else open_store(out)
+    template = checked
+    if template is None:
+        template, change = check_terms(study, out, overwrite)
+        if change:
+            notify(change)
+    spec = get_setup(study.setup)
+    results = generate(
+        lake, study.setup, study.modes, study.world_seeds, study.n_transitions, spec.default_shard_size,
+        workers=gen_workers, notify=notify,
+    )  # fmt: skip
     datasets = [check_lake(lake).child(m.dataset_id) for m, _ in results]
     plans = plan_runs(template, datasets, out, overwrite)
     at = {run.name: step for run, step in plans}
@@ -157,8 +203,7 @@ def sweep(
         todo = [run for run in group if at[run.name] < run.config.steps]
         if todo:  # resumed from the step all members reached (train/loop.py, resume_members)
             chunks.append((todo, min(at[run.name] for run in todo) > 0))
-    run_ensembles(chunks, executor, workers, template.threads, template.device)
-    return [run for run, _ in plans]
+    return [run for run, _ in plans], chunks
 
 
 def _study_bytes(record: dict[str, Any]) -> bytes:
@@ -189,10 +234,12 @@ def ensembles(runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[
     return [runs[i : i + size] for i in range(0, len(runs), size)]
 
 
-def train_chunk(paths: list[str], resume: bool, threads: int, progress: bool = False) -> int:
-    """One ensemble, wherever it runs (this process, a spawned one, a Ray worker); returns its size."""
+def train_chunk(paths: list[str], resume: bool, threads: int, channel: Any = None, key: str = "") -> int:
+    """One ensemble, wherever it runs (this process, a spawned one, a Ray worker); returns its size.
+    Its step goes on `channel` about every second (study/monitor.py)."""
     runs = [RunDir.open(p) for p in paths]
-    train_ensemble(runs, resume=resume, threads=threads, progress=progress)
+    on_step = None if channel is None else (lambda step: channel.put((key, step)))
+    train_ensemble(runs, resume=resume, threads=threads, progress=False, on_step=on_step)
     return len(runs)
 
 
@@ -213,18 +260,30 @@ def run_ensembles(
     """Train every ensemble where the executor puts it (common/executors.py): in this process for
     one worker, else one spawned process per ensemble up to `workers` at a time, or a Ray task
     each (never retried by Ray: a task started again would not know how far it got; re-running
-    the sweep resumes)."""
+    the sweep resumes). The study's progress is one line (study/monitor.py)."""
+    if not chunks:
+        return
     for runs, _ in chunks:  # whoever trains them claims them, this process included
         for run in runs:
             run.release()
-    here = executor == "local" and (workers <= 1 or len(chunks) <= 1)  # trained in this process: its bar shows
-    tasks = [([str(run.path) for run in runs], resume, threads, here) for runs, resume in chunks]
+    starts = {str(i): (len(runs), _start_step(runs) if resume else 0, runs[0].config.steps)
+              for i, (runs, resume) in enumerate(chunks)}  # fmt: skip
     gpus = 1 if device.startswith("cuda") else 0
     try:
-        with open_executor(executor, workers, num_cpus=threads, num_gpus=gpus, max_retries=0) as ex:
-            for _ in ex.map(train_chunk, tasks):
-                pass
+        with open_executor(executor, workers, num_cpus=threads, num_gpus=gpus, max_retries=0) as ex, ex.channel() as ch:
+            tasks = [
+                ([str(run.path) for run in runs], resume, threads, ch, str(i))
+                for i, (runs, resume) in enumerate(chunks)
+            ]
+            with monitored(StudyMonitor(starts), ch):
+                for _ in ex.map(train_chunk, tasks):
+                    pass
     except WorkerDied as e:
         line = f"{e}; the runs keep their last checkpoints: the same command resumes them"
         _mark_stopped([run for runs, _ in chunks for run in runs], line)
         raise WorkerDied(line) from None
+
+
+def _start_step(runs: list[RunDir]) -> int:
+    """The step a resumed ensemble starts from: the last checkpoint all its members reached."""
+    return min(run.checkpoint_step() for run in runs)

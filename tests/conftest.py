@@ -24,7 +24,7 @@ def smgen(*args: str):
 def run_cmd(*args: str, timeout: float = 120, **kwargs) -> subprocess.CompletedProcess:
     """Run a console script of this environment as a real process."""
     cmd = [str(BIN / args[0]), *map(str, args[1:])]
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", **kwargs.pop("env", {})}
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, **kwargs)
 
 

@@ -130,9 +130,8 @@ def _attempt(action):
 
 
 @main.command()
-@click.option(
-    "--setup", "setup_name", type=click.Choice(setup_names()), required=True, help="A built-in or registered setup."
-)
+@click.argument("study_file", required=False, type=click.Path(path_type=Path))
+@click.option("--setup", "setup_name", type=click.Choice(setup_names()), help="A built-in or registered setup.")
 @click.option("--modes", default="MEM,MM,MME", show_default=True, help="Comma-separated modes, or all.")
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
 @click.option(
@@ -151,7 +150,9 @@ def _attempt(action):
     help="Generator processes [default: this machine's cores; bytes do not depend on it].",
 )
 @LAKE_OPTION
-@click.option("--out", default=RUNS, show_default=True, help="Folder (or fsspec URL) for the run folders.")
+@click.option(
+    "--out", default=None, help="Folder (or fsspec URL) for the run folders [default: runs, or runs/<study name>]."
+)
 @config_options(exclude=("seed",))
 @click.option(
     "--max-ensemble", type=click.IntRange(1, 10_000), default=150, show_default=True, help="Runs per vectorised model."
@@ -164,8 +165,12 @@ def _attempt(action):
     default=None,
     help="Ensembles trained at once (processes, or CPUs of a local Ray) [default: this machine's cores].",
 )
+@click.option(
+    "--dry-run", is_flag=True, help="With a study file: what it would generate, train, store and take; writes nothing."
+)
 @friendly_errors
 def sweep(
+    study_file,
     setup_name,
     modes,
     worlds,
@@ -178,9 +183,11 @@ def sweep(
     overwrite,
     executor,
     workers,
+    dry_run,
     **flags,
 ) -> None:
-    """Generate missing datasets, then train every (world, mode) run as vectorised ensembles."""
+    """Generate missing datasets, then train every (world, mode) run as vectorised ensembles: from
+    flags, or from STUDY_FILE (TOML: docs/STUDIES.md), which may also vary any training field."""
     from smspace.common.cli import default_workers
     from smspace.datagen.setups import get_setup
     from smspace.lake.dataset import open_lake
@@ -188,10 +195,19 @@ def sweep(
     from smspace.study.sweep import sweep as run_sweep
     from smspace.train.fit import resolve_device
 
+    ctx = click.get_current_context()
+    if study_file is not None:
+        _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run)
+        return
+    if dry_run:
+        raise SmspaceError("--dry-run needs a study file (smtrain sweep STUDY.toml --dry-run)")
+    if setup_name is None:
+        raise SmspaceError("give a study file or --setup (smtrain sweep --help)")
     get_setup(setup_name)
     mode_list = parse_modes(modes)
     template = config_from_flags(flags)
     resolve_device(template.device)
+    out = out or RUNS
     message = (
         f"interrupted; the runs in {out} keep their last checkpoints and the lake its complete parts: "
         "the same command resumes them"
@@ -210,11 +226,38 @@ def sweep(
             overwrite,
             executor,
             workers or default_workers(),
-            explicit=frozenset(
-                f.name for f in flag_fields_of_config() if on_command_line(click.get_current_context(), f.name)
-            ),
+            explicit=given_fields(ctx),
             notify=lambda line: click.echo(line, err=True),
         )
+    for run in runs:
+        click.echo(display_name(str(run.path)))
+
+
+STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions", "max_ensemble")
+
+
+def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run) -> None:
+    """`smtrain sweep STUDY.toml`: what the study computes comes from the file alone."""
+    from smspace.lake.dataset import open_lake
+    from smspace.study.run import dry_run as plan_only
+    from smspace.study.run import run_study
+
+    given = [p.opts[0] for p in ctx.command.params if p.name in STUDY_FILE_KEYS and on_command_line(ctx, p.name)]
+    given += [flag_name(f) for f in flag_fields_of_config() if f.name in given_fields(ctx)]
+    if given:
+        raise SmspaceError(f"{', '.join(given)}: set in the study file {study_file}, not on the command line")
+    if dry_run:
+        for line in plan_only(study_file, open_lake(lake), out, workers, overwrite):
+            click.echo(line)
+        return
+    ex = executor if on_command_line(ctx, "executor") else None
+    with on_interrupt(
+        f"interrupted; the study's runs keep their last checkpoints: smtrain sweep {study_file} resumes them"
+    ):
+        runs = run_study(
+            study_file, open_lake(lake), out, overwrite, workers, gen_workers, ex,
+            notify=lambda line: click.echo(line, err=True),
+        )  # fmt: skip
     for run in runs:
         click.echo(display_name(str(run.path)))
 

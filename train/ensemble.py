@@ -8,7 +8,7 @@ a lone model's state, so every run writes the same folder and checkpoint as `smt
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -168,20 +168,29 @@ def _check_compatible(cfgs: list) -> None:
             raise SmspaceError(f"runs of one ensemble must share {', '.join(diff)}")
 
 
-def train_ensemble(runs: list[RunDir], resume: bool = False, threads: int = 1, progress: bool = True) -> None:
-    """Train runs together to their configured steps: from scratch, or (resume) from their checkpoints."""
+def train_ensemble(
+    runs: list[RunDir],
+    resume: bool = False,
+    threads: int = 1,
+    progress: bool = True,
+    on_step: Callable[[int], None] | None = None,
+) -> None:
+    """Train runs together to their configured steps: from scratch, or (resume) from their
+    checkpoints; `on_step` hears the step about every second."""
     torch.set_num_threads(threads)
     device = resolve_device(runs[0].config.device)
     try:
         for run in runs:
             run.claim()  # before anything is recorded: a run another process trains is left untouched
-        _train_claimed(runs, resume, device, progress)
+        _train_claimed(runs, resume, device, progress, on_step)
     finally:
         for run in runs:
             run.release()  # the claims end with the training, however it ends
 
 
-def _train_claimed(runs: list[RunDir], resume: bool, device: torch.device, progress: bool) -> None:
+def _train_claimed(
+    runs: list[RunDir], resume: bool, device: torch.device, progress: bool, on_step: Callable[[int], None] | None
+) -> None:
     with recorded_outcome(runs):
         members = [open_member(run, run.config, device) for run in runs]
         _check_compatible([m.cfg for m in members])
@@ -198,4 +207,4 @@ def _train_claimed(runs: list[RunDir], resume: bool, device: torch.device, progr
         )
         learner = EnsembleLearner(stacked, opt, [m.data for m in members])
         step = resume_members(learner, members, device) if resume else 0
-        train(learner, members, step, progress)
+        train(learner, members, step, progress, on_step=on_step)

@@ -9,7 +9,6 @@ lone model and a stacked ensemble sits behind `Learner`.
 from __future__ import annotations
 
 import math
-import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -19,10 +18,10 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 from torch.utils.data import DataLoader
-from tqdm import tqdm
 
 from smspace.common.bounded import run_within
 from smspace.common.errors import SmspaceError
+from smspace.common.progress import Progress
 from smspace.lake.dataset import Dataset
 from smspace.train.config import TrainConfig
 from smspace.train.distributed import SINGLE, Ranks, mean_over_ranks, per_rank_batch
@@ -30,6 +29,7 @@ from smspace.train.evaluation import N_PREDICTIONS, EvalData, scores_row
 from smspace.train.loader import TransitionStream
 from smspace.train.run_dir import RunDir
 
+TICK_S = 1.0  # how often on_step hears of the step
 LAYOUT = "layout"  # recorded in checkpoints: dense weights stored (in, out) (train/fit.py, _upgrade)
 
 
@@ -153,10 +153,12 @@ def train(
     progress: bool = True,
     ranks: Ranks = SINGLE,
     synced: Callable[[], bool] = lambda: True,
+    on_step: Callable[[int], None] | None = None,
 ) -> None:
     """Train every member from `step` (0, or where `resume_members` left them) to cfg.steps. Under
-    DDP every rank steps, rank 0 alone evaluates and writes, and at each evaluation all ranks check
-    (`synced`) that they hold identical weights."""
+        DDP every rank steps, rank 0 alone evaluates and writes, and at each evaluation all ranks check
+        (`synced`) that they hold identical weights. `on_step`: told the step about every second (a
+    sweep's progress across processes)."""
     cfg = members[0].cfg  # the schedule is shared: ensembles check that their runs agree on it
     count = len(members)
     device = members[0].data.m_regular.device
@@ -197,14 +199,8 @@ def train(
     loss_sum = torch.zeros(count, dtype=torch.float32, device=device)
     loss_count = 0
     desc = "training" if count == 1 else f"ensemble of {count}"
-    bar = tqdm(
-        total=cfg.steps,
-        initial=step,
-        unit="step",
-        disable=None if progress and ranks.primary else True,
-        file=sys.stderr,
-        desc=desc,
-    )
+    bar = Progress(desc, cfg.steps, "step", initial=step, enabled=progress and ranks.primary)
+    last_tick = time.monotonic()
     try:
         t0 = time.perf_counter()
         while step < cfg.steps:
@@ -218,6 +214,9 @@ def train(
             loss_sum += losses
             loss_count += 1
             bar.update()
+            if on_step is not None and time.monotonic() - last_tick >= TICK_S:
+                on_step(step)
+                last_tick = time.monotonic()
             if step % cfg.eval_every == 0 or step == cfg.steps:
                 train_loss = loss_sum.double().cpu().numpy() / loss_count
                 if not np.isfinite(train_loss).all():
@@ -226,17 +225,23 @@ def train(
                 t0 = time.perf_counter()
                 loss_sum.zero_()
                 loss_count = 0
-                if count == 1 and ranks.primary:
-                    row = members[0].rows[-1]
-                    bar.set_postfix(
-                        loss=f"{row['eval_loss']:.4g}", D_topo=f"{row['d_topo']:.3g}", D_metric=f"{row['d_metric']:.3g}"
-                    )
+                if ranks.primary:
+                    bar.set_postfix(**_summary([m.rows[-1] for m in members]))
+        if on_step is not None:
+            on_step(step)
     finally:
         bar.close()
     if ranks.primary:
         message = f"{ranks.world} ranks, identical weights at every evaluation" if ranks.distributed else ""
         for m in members:
             m.run.set_status("finished", step, message)
+
+
+def _summary(rows: list[dict[str, Any]]) -> dict[str, str]:
+    """The last evaluation for a progress line: the run's values, or an ensemble's medians."""
+    prefix = "" if len(rows) == 1 else "median "
+    shown = {"loss": ("eval_loss", ".4g"), "D_topo": ("d_topo", ".3g"), "D_metric": ("d_metric", ".3g")}
+    return {prefix + name: format(float(np.median([r[key] for r in rows])), fmt) for name, (key, fmt) in shown.items()}
 
 
 def _next_batch(batches) -> tuple[torch.Tensor, ...]:

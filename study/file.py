@@ -1,0 +1,267 @@
+"""A study as a file: which datasets, which training terms, and a grid over any training field.
+
+    [study]                       # what the runs train on
+    setup = "grid"                # a built-in or registered setup
+    modes = ["MEM", "MM", "MME"]  # or "all"
+    worlds = 10                   # world seeds seed .. seed + worlds - 1
+    seed = 0
+    transitions = 150000          # optional: the setup's default
+    [train]                       # any field of `smtrain fit`'s flags, by its config name
+    steps = 100000
+    [grid]                        # optional: one sub-study per combination of these values
+    n_h = [3, 25]
+    [run]                         # how it runs, not what it computes
+    workers = 2
+
+Read with the standard library (tomllib) and checked here, in one place: every error is one line
+naming the file and the key. A study's resolved file is recorded in its output folder
+(`study-file.json`, beside a copy of the file) so that a later run of a changed file is told what
+changed (`changes`), and each combination of the grid is an ordinary sweep folder with its own
+study.json (train/terms.py), which refuses what may not change.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import tomllib
+from dataclasses import MISSING, Field, asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from smspace.common.errors import SmspaceError
+from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.lake.transitions import MODES
+from smspace.train.config import TrainConfig, flag_fields
+from smspace.train.terms import PER_RUN
+
+RECORD = "study-file.json"  # the resolved study, in its output folder
+SOURCE = "study-file.toml"  # the file as it was given
+SECTIONS = ("study", "train", "grid", "run")
+RUN_KEYS = {"workers": 1, "gen_workers": 1, "max_ensemble": 1, "executor": None}
+EXECUTORS = ("local", "ray")
+NOT_TRAINABLE = ("seed",)  # a run's seed is its world's
+
+
+@dataclass(frozen=True)
+class StudyFile:
+    """A study file, resolved: every key checked, defaults filled where they are known."""
+
+    name: str
+    setup: str
+    modes: list[str]
+    worlds: int
+    seed: int
+    transitions: int | None
+    train: dict[str, Any]
+    grid: dict[str, list[Any]]
+    run: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def world_seeds(self) -> list[int]:
+        return list(range(self.seed, self.seed + self.worlds))
+
+    def combinations(self) -> list[dict[str, Any]]:
+        """One {field: value} per sub-study, in the file's order ([{}] without a grid)."""
+        keys = list(self.grid)
+        return [dict(zip(keys, values, strict=True)) for values in itertools.product(*self.grid.values())]
+
+    def config(self, combination: dict[str, Any]) -> TrainConfig:
+        """The training template of one sub-study (its fields given, the others the defaults)."""
+        return TrainConfig(dataset="", **(self.train | combination))
+
+    def given(self, combination: dict[str, Any]) -> frozenset[str]:
+        """The fields the file sets, which a later run may not silently take from a recorded study."""
+        return frozenset(self.train) | frozenset(combination)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def folder_name(combination: dict[str, Any]) -> str:
+    """The sub-folder of one combination: key=value pairs joined by commas ("" without a grid)."""
+    return ",".join(f"{k}={_short(v)}" for k, v in combination.items())
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, list):
+        return "-".join(map(str, value))
+    if isinstance(value, dict):
+        return "-".join(f"{k}{_short(v)}" for k, v in sorted(value.items())) or "none"
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def load_study(path: Path | str) -> StudyFile:
+    """The study in a TOML file, checked; SmspaceError naming the file and key otherwise."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SmspaceError(f"no study file at {path}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise SmspaceError(f"cannot read study file {path}: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SmspaceError(f"{path} is not valid TOML: {e}") from None
+    return parse_study(raw, str(path), default_name=path.stem)
+
+
+def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") -> StudyFile:
+    """`raw`: the parsed TOML; `where`: how errors name the file."""
+
+    def bad(key: str, problem: str) -> SmspaceError:
+        return SmspaceError(f"{where}: {key}: {problem}")
+
+    for section in raw:
+        if section not in SECTIONS:
+            raise bad(section, f"unknown section (sections: {', '.join(SECTIONS)})")
+        if not isinstance(raw[section], dict):
+            raise bad(section, "must be a table ([" + section + "])")
+    study = dict(raw.get("study", {}))
+    if "setup" not in study:
+        raise bad("study.setup", "missing (the setup every dataset of the study is generated with)")
+    known = {"name", "setup", "modes", "worlds", "seed", "transitions"}
+    for key in study:
+        if key not in known:
+            raise bad(f"study.{key}", f"unknown key (keys: {', '.join(sorted(known))})")
+    setup = _string(study["setup"], bad, "study.setup")
+    _check_setup(setup, bad)
+    name = _string(study.get("name", default_name), bad, "study.name")
+    modes = _modes(study.get("modes", list(MODES)), bad)
+    worlds = _integer(study.get("worlds", 1), bad, "study.worlds", 1, MAX_WORLDS)
+    seed = _integer(study.get("seed", 0), bad, "study.seed", 0, SEED_MAX)
+    transitions = study.get("transitions")
+    if transitions is not None:
+        transitions = _integer(transitions, bad, "study.transitions", 1, None)
+
+    fields_by_name = {f.name: f for f in flag_fields() if f.name not in NOT_TRAINABLE}
+    train = {k: _train_value(fields_by_name, k, v, bad, f"train.{k}") for k, v in raw.get("train", {}).items()}
+    grid: dict[str, list[Any]] = {}
+    for key, values in raw.get("grid", {}).items():
+        if not isinstance(values, list) or not values:
+            raise bad(f"grid.{key}", "must be a non-empty list of values")
+        if key in train:
+            raise bad(f"grid.{key}", "is also set in [train]: give it in one place")
+        checked = [_train_value(fields_by_name, key, v, bad, f"grid.{key}") for v in values]
+        if len({json.dumps(v, sort_keys=True) for v in checked}) != len(checked):
+            raise bad(f"grid.{key}", "names a value twice")
+        grid[key] = checked
+    run = _run_section(raw.get("run", {}), bad)
+    resolved = StudyFile(name, setup, modes, worlds, seed, transitions, train, grid, run)
+    for combination in resolved.combinations():  # what only the whole config can check (lr > 0…)
+        try:
+            resolved.config(combination)
+        except SmspaceError as e:
+            at = folder_name(combination)
+            raise SmspaceError(f"{where}: {f'[{at}] ' if at else ''}{e}") from None
+    names = [folder_name(c) for c in resolved.combinations()]
+    if len(set(names)) != len(names):
+        raise bad("grid", "two combinations would share a folder name; give values that print differently")
+    return resolved
+
+
+def _check_setup(setup: str, bad) -> None:
+    from smspace.datagen.setups import setup_names
+
+    if setup not in setup_names():
+        raise bad("study.setup", f"unknown setup {setup!r} (one of {', '.join(setup_names())})")
+
+
+def _string(value: Any, bad, key: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise bad(key, f"expected a non-empty string, got {value!r}")
+    return value
+
+
+def _integer(value: Any, bad, key: str, low: int | None, high: int | None) -> int:
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise bad(key, f"expected an integer, got {value!r}")
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise bad(key, f"{value} is outside {low}..{high if high is not None else ''}")
+    return value
+
+
+def _modes(value: Any, bad) -> list[str]:
+    if value == "all":
+        return list(MODES)
+    if not isinstance(value, list) or not value or not all(isinstance(m, str) for m in value):
+        raise bad("study.modes", f'expected a list of modes such as ["MM", "MME"], or "all"; got {value!r}')
+    for mode in value:
+        if mode not in MODES:
+            raise bad("study.modes", f"unknown mode {mode!r} (one of {', '.join(MODES)})")
+    if len(set(value)) != len(value):
+        raise bad("study.modes", "names a mode twice")
+    return list(value)
+
+
+def _default(f: Field) -> Any:
+    return f.default_factory() if f.default is MISSING else f.default
+
+
+def _train_value(fields_by_name: dict[str, Field], key: str, value: Any, bad, where: str) -> Any:
+    """One training field's value, of the field's type and within its bounds."""
+    f = fields_by_name.get(key)
+    if f is None:
+        if key in NOT_TRAINABLE:
+            raise bad(where, "a run's seed is its world's: set study.seed")
+        if key in PER_RUN:
+            raise bad(where, "comes from each dataset, not from the study")
+        raise bad(where, f"unknown training field (fields: {', '.join(sorted(fields_by_name))})")
+    default = _default(f)
+    if isinstance(default, list):
+        if not isinstance(value, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            raise bad(where, f"expected a list of layer sizes such as [150, 100, 50], got {value!r}")
+        return list(value)
+    if isinstance(default, dict):
+        if not isinstance(value, dict):
+            raise bad(where, f"expected a table such as {{width = 64}}, got {value!r}")
+        return dict(value)
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise bad(where, f"expected true or false, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value) or value <= 0:
+            raise bad(where, f"expected a finite positive number, got {value!r}")
+        return float(value)
+    if isinstance(default, int):
+        return _integer(value, bad, where, f.metadata["min"], f.metadata["max"])
+    if key == "model":
+        from smspace.train.model import model_names
+
+        if value not in model_names():
+            raise bad(where, f"unknown model {value!r} (one of {', '.join(model_names())})")
+    return _string(value, bad, where)
+
+
+def _run_section(section: dict[str, Any], bad) -> dict[str, Any]:
+    run = {}
+    for key, value in section.items():
+        if key not in RUN_KEYS:
+            raise bad(f"run.{key}", f"unknown key (keys: {', '.join(RUN_KEYS)})")
+        if key == "executor":
+            if value not in EXECUTORS:
+                raise bad("run.executor", f"expected one of {', '.join(EXECUTORS)}, got {value!r}")
+            run[key] = value
+        else:
+            run[key] = _integer(value, bad, f"run.{key}", RUN_KEYS[key], None)
+    return run
+
+
+def changes(recorded: dict[str, Any], now: dict[str, Any]) -> list[str]:
+    """What differs between the study recorded in a folder and the file given now, one phrase per
+    key ("study.worlds 3 -> 4"); how it runs ([run]) is not part of what a study computes."""
+    out = []
+    for section in ("name", "setup", "modes", "worlds", "seed", "transitions", "train", "grid"):
+        a, b = recorded.get(section), now.get(section)
+        if isinstance(a, dict) and isinstance(b, dict):
+            for key in sorted(a.keys() | b.keys()):
+                if a.get(key) != b.get(key):
+                    out.append(f"{section}.{key} {_shown(a.get(key))} -> {_shown(b.get(key))}")
+        elif a != b:
+            out.append(f"{section} {_shown(a)} -> {_shown(b)}")
+    return out
+
+
+def _shown(value: Any) -> str:
+    return "(unset)" if value is None else json.dumps(value)

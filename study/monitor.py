@@ -1,0 +1,69 @@
+"""A study's progress as a whole, from ensembles training in other processes or on Ray: each one
+puts (its key, its step) on the executor's channel about every second (train/loop.py, on_step);
+this process adds them up into one line (runs finished / running, run-steps per second, ETA)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from smspace.common.executors import drain_channel
+from smspace.common.progress import Progress
+
+POLL_S = 0.5
+
+
+class StudyMonitor:
+    """`chunks`: key -> (runs in the ensemble, step it starts from, step it ends at)."""
+
+    def __init__(self, chunks: dict[str, tuple[int, int, int]], enabled: bool = True):
+        self.chunks = chunks
+        self.at = {key: start for key, (_, start, _) in chunks.items()}
+        total = sum(runs * (end - start) for runs, start, end in chunks.values())
+        self.runs = sum(runs for runs, _, _ in chunks.values())
+        self.bar = Progress("study", total, "run-step", enabled=enabled and total > 0)
+        self._show()
+
+    def heard(self, key: str, step: int) -> None:
+        if key in self.at:
+            self.at[key] = max(self.at[key], step)
+
+    def _show(self) -> None:
+        finished = sum(runs for key, (runs, _, end) in self.chunks.items() if self.at[key] >= end)
+        running = sum(
+            runs for key, (runs, start, end) in self.chunks.items() if start < end and start < self.at[key] < end
+        )
+        done = sum(runs * (self.at[key] - start) for key, (runs, start, _) in self.chunks.items())
+        already = sum(runs for runs, start, end in self.chunks.values() if start >= end)
+        self.bar.set_postfix(runs=f"{finished + already}/{self.runs} finished, {running} running")
+        self.bar.set(done)
+
+    def poll(self, channel: Any) -> None:
+        for key, step in drain_channel(channel):
+            self.heard(key, step)
+        self._show()
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+@contextmanager
+def monitored(monitor: StudyMonitor, channel: Any) -> Iterator[None]:
+    """Poll the channel in a thread while the block runs (the block waits on the executor)."""
+    stop = threading.Event()
+
+    def loop() -> None:
+        while not stop.wait(POLL_S):
+            monitor.poll(channel)
+
+    thread = threading.Thread(target=loop, name="study-progress", daemon=True)
+    thread.start()
+    try:
+        yield
+        monitor.poll(channel)
+    finally:
+        stop.set()
+        thread.join()
+        monitor.close()

@@ -1,0 +1,243 @@
+"""`smtrain sweep STUDY.toml`: a study file run as one sweep per combination of its grid, all
+ensembles trained together, or (--dry-run) what it would do, need and take, with nothing written.
+
+Layout: OUT/study-file.toml (the file as given), OUT/study-file.json (resolved), and the runs in
+OUT itself without a grid, else in OUT/<key=value,...>/, each an ordinary sweep folder.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from smspace.common.cli import default_workers
+from smspace.common.errors import SmspaceError
+from smspace.common.progress import duration
+from smspace.datagen.setups import draw_transitions, get_setup
+from smspace.lake.manifest import GenConfig
+from smspace.lake.store import Store, open_store
+from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study
+from smspace.study.sweep import SweepPlan, check_terms, ensembles, prepare, run_ensembles
+from smspace.train.config import TrainConfig, parameter_count
+from smspace.train.run_dir import CONFIG, RunDir
+
+
+@dataclass(frozen=True)
+class Combination:
+    values: dict[str, Any]
+    out: Store
+    plan: SweepPlan
+
+
+def combinations(study: StudyFile, out: Store) -> list[Combination]:
+    found = []
+    for values in study.combinations():
+        name = folder_name(values)
+        plan = SweepPlan(
+            study.setup, study.modes, study.world_seeds, study.config(values), study.transitions, study.given(values)
+        )
+        found.append(Combination(values, out.child(name) if name else out, plan))
+    return found
+
+
+def run_study(
+    path: Path | str,
+    lake: Store,
+    out: Store | str | None,
+    overwrite: bool = False,
+    workers: int | None = None,
+    gen_workers: int | None = None,
+    executor: str | None = None,
+    notify: Callable[[str], None] = lambda line: None,
+) -> list[RunDir]:
+    """Run (or resume, or extend) a study file; arguments given here override its [run] section."""
+    study = load_study(path)
+    out = open_store(out if out is not None else f"runs/{study.name}")
+    workers = workers or study.run.get("workers") or default_workers()
+    gen_workers = gen_workers or study.run.get("gen_workers", workers)
+    executor = executor or study.run.get("executor", "local")
+    max_ensemble = study.run.get("max_ensemble", 150)
+    combos = combinations(study, out)
+    checked = [check_terms(c.plan, c.out, overwrite) for c in combos]  # every refusal before any write
+    for line in study_changes(study, out, overwrite):
+        notify(line)
+    for _, change in checked:
+        if change:
+            notify(change)
+    out.make()
+    out.put(SOURCE, Path(path).read_bytes())
+    out.put(RECORD, (json.dumps(study.to_dict(), indent=1) + "\n").encode())
+    runs, chunks = [], []
+    for combo, (template, _) in zip(combos, checked, strict=True):
+        got, todo = prepare(
+            combo.plan, lake, combo.out, gen_workers, max_ensemble, overwrite, workers, notify, checked=template
+        )
+        runs += got
+        chunks += todo
+    first = combos[0].plan.template
+    run_ensembles(chunks, executor, workers, first.threads, first.device)
+    return runs
+
+
+def study_changes(study: StudyFile, out: Store, overwrite: bool) -> list[str]:
+    """What changed since the study last ran in `out` (nothing for a new folder or --overwrite)."""
+    if overwrite:
+        return []
+    try:
+        recorded = json.loads(out.read_bytes(RECORD))
+    except FileNotFoundError:
+        return []
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise SmspaceError(f"{out.url}/{RECORD} is unreadable ({type(e).__name__}); pass --overwrite") from None
+    diff = changes(recorded, study.to_dict())
+    if not diff:
+        return []
+    lines = [f"the study in {out.url} changed since it last ran: {'; '.join(diff)}"]
+    before = StudyFile(**{k: recorded[k] for k in study.to_dict() if k in recorded}) if "grid" in recorded else None
+    if before is not None:
+        now = {folder_name(c) for c in study.combinations()}
+        gone = [folder_name(c) for c in before.combinations() if folder_name(c) not in now]
+        if gone:
+            lines.append(f"no longer in the study (their runs are kept, not trained): {', '.join(gone)}")
+    return lines
+
+
+# --- the dry run --------------------------------------------------------------------------------
+
+
+def dry_run(
+    path: Path | str, lake: Store, out: Store | str | None, workers: int | None = None, overwrite: bool = False
+) -> list[str]:
+    """The lines of a dry run: datasets to generate, runs (new / to resume / finished), the disk
+    they need and the time they take at rates measured here and now. Writes nothing."""
+    study = load_study(path)
+    out = open_store(out if out is not None else f"runs/{study.name}")
+    workers = workers or study.run.get("workers") or default_workers()
+    gen_workers = study.run.get("gen_workers", workers)
+    max_ensemble = study.run.get("max_ensemble", 150)
+    spec = get_setup(study.setup)
+    n = spec.default_transitions if study.transitions is None else study.transitions
+    combos = combinations(study, out)
+    for combo in combos:
+        check_terms(combo.plan, combo.out, overwrite)  # what a real run would refuse
+    worlds = f"{study.seed}..{study.seed + study.worlds - 1}"
+    lines = [
+        f"study {study.name} ({path}): setup {study.setup}, modes {','.join(study.modes)}, worlds {worlds}, "
+        f"{len(combos)} combination(s), into {out.url}"
+    ]
+    lines += study_changes(study, out, overwrite)
+    ids = [_dataset_id(study, mode, seed) for seed in study.world_seeds for mode in study.modes]
+    missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
+    world = spec.build(study.seed)
+    gen_rate = _generation_rate(world, study.modes[0])
+    n_sensor = int(np.prod(world.sensor_shape))
+    n_regular = len(world.regular_sampling()[0])
+    gen_bytes = len(missing) * n * spec.bytes_per_transition
+    gen_s = len(missing) * n / gen_rate / max(1, min(gen_workers, len(missing) * -(-n // spec.default_shard_size)))
+    lines.append(
+        f"datasets: {len(ids)}, {len(ids) - len(missing)} in {lake.url}, {len(missing)} to generate "
+        f"({len(missing) * n} transitions, about {_size(gen_bytes)}, {duration(gen_s)} at {gen_rate:.4g} "
+        f"transitions/s per worker measured now)"
+    )
+    total_s, total_bytes = 0.0, 0
+    counts = {"new": 0, "resume": 0, "finished": 0}
+    for combo in combos:
+        template = combo.plan.template.for_setup(study.setup, n, spec.encoder_layers)
+        states = [
+            _run_state(combo.out, template, _dataset_id(study, mode, seed), seed)
+            for seed in study.world_seeds
+            for mode in study.modes
+        ]
+        for state, _ in states:
+            counts[state] += 1
+        run_steps = sum(template.steps - step for state, step in states if state != "finished")
+        size = len(ensembles(list(range(len(states))), max_ensemble, workers)[0])
+        per_step = _ensemble_step_s(template, spec.n_motor, n_sensor, size) / size
+        groups = -(-len(states) // size)
+        seconds = run_steps * per_step / max(1, min(workers, groups))
+        total_s += seconds
+        evaluations = template.steps // template.eval_every + 2
+        params = parameter_count(template, spec.n_motor, n_sensor)
+        per_run = 2 * 12 * params + evaluations * 4 * (n_regular * (template.n_h + 2) + 16 * n_sensor)
+        total_bytes += per_run * sum(state == "new" for state, _ in states)
+        label = folder_name(combo.values) or "(no grid)"
+        lines.append(
+            f"  {label}: {len(states)} runs, {run_steps} run-steps to train, {per_step * 1e3:.3g} ms per run-step "
+            f"in ensembles of {size} measured now, {duration(seconds)} on {workers} worker(s)"
+        )
+    lines.append(f"runs: {counts['new']} new, {counts['resume']} to resume, {counts['finished']} finished")
+    lines.append(f"disk: about {_size(gen_bytes)} in the lake and {_size(total_bytes)} of run folders")
+    lines.append(
+        f"time: about {duration(gen_s + total_s)} ({duration(gen_s)} generating, {duration(total_s)} training)"
+    )
+    lines.append("dry run: nothing was written")
+    return lines
+
+
+def _dataset_id(study: StudyFile, mode: str, seed: int) -> str:
+    return GenConfig(study.setup, mode, seed, 1, 1).dataset_id
+
+
+def _run_state(out: Store, template: TrainConfig, dataset_id: str, seed: int) -> tuple[str, int]:
+    cfg = replace(template, dataset_id=dataset_id, seed=seed)
+    where = out.child(cfg.run_name)
+    if not where.exists(CONFIG):
+        return "new", 0
+    run = RunDir.open(where)
+    step = run.checkpoint_step()
+    return ("finished", step) if step >= template.steps else ("resume", step)
+
+
+def _generation_rate(world, mode: str, n: int = 512) -> float:
+    """Transitions per second one worker draws (rendered, for a camera), timed on a small batch."""
+    rng = np.random.default_rng(0)
+    draw_transitions(world, mode, rng, 16)  # the first draw pays for set-up
+    t = time.perf_counter()
+    draw_transitions(world, mode, rng, n)
+    return n / max(time.perf_counter() - t, 1e-9)
+
+
+def _ensemble_step_s(template: TrainConfig, n_motor: int, n_sensor: int, runs: int, steps: int = 10) -> float:
+    """Seconds of one training step of an ensemble of `runs` of this network, on random batches,
+    with the threads a run is given."""
+    from smspace.train.ensemble import Stacked
+    from smspace.train.fit import build
+    from smspace.train.model import prediction_loss
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(template.threads)
+    try:
+        cpu = torch.device("cpu")
+        stacked = Stacked([build(replace(template, seed=i), n_motor, n_sensor, cpu)[0] for i in range(runs)])
+        opt = torch.optim.Adam(stacked.parameters(), lr=1e-3, fused=True)
+        b = template.batch_size
+        xs = [torch.rand(runs, b, k) * 2 - 1 for k in (n_motor, n_sensor, n_motor, n_sensor)]
+
+        def step() -> None:
+            loss = prediction_loss(stacked.forward(xs[0], xs[1], xs[2]), xs[3]).sum()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+
+        step()
+        t = time.perf_counter()
+        for _ in range(steps):
+            step()
+        return (time.perf_counter() - t) / steps
+    finally:
+        torch.set_num_threads(before)
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.3g} {unit}" if unit != "B" else f"{int(n)} B"
+        n /= 1024
+    return f"{n:.3g} TiB"
