@@ -33,6 +33,7 @@ from smspace.lake.manifest import (
     GenConfig,
     Manifest,
     load_manifest,
+    software_versions,
 )
 from smspace.lake.store import Store
 
@@ -166,7 +167,22 @@ def build_manifest(cfg: GenConfig, records: dict[int, PartRecord]) -> Manifest:
         regular_sampling={"file": REGULAR_FILE, "count": reg.count} | reg.entry(),
         shift_bound=get_setup(cfg.setup).shift_bound,
         network={"encoder_layers": list(get_setup(cfg.setup).encoder_layers)},
+        software=_made_with([records[i] for i in parts_of(cfg)]),
     )
+
+
+def _made_with(records: list[PartRecord]) -> dict[str, str]:
+    """The software of the parts written now (a value that differs between them lists every one);
+    parts found already stored were written by an earlier command, which is said, not guessed."""
+    known = [r.software for r in records if r.software is not None]
+    if not known:
+        note = "every part was found stored, written by an earlier command: these are the committing command's"
+        return software_versions() | {"note": note}
+    keys = dict.fromkeys(k for s in known for k in s)
+    merged = {key: " | ".join(sorted({s.get(key, "unknown") for s in known})) for key in keys}
+    if len(known) < len(records):
+        merged["note"] = f"{len(records) - len(known)} of {len(records)} parts were written by an earlier command"
+    return merged
 
 
 def commit_dataset(folder: Store, cfg: GenConfig, records: dict[int, PartRecord]) -> tuple[Manifest, bool]:

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from smspace.common.errors import SmspaceError
 from smspace.datagen.setups import MODES, World, draw_transitions, get_setup
-from smspace.lake.manifest import REGULAR_FILE, GenConfig, shard_name
+from smspace.lake.manifest import REGULAR_FILE, GenConfig, shard_name, software_versions
 from smspace.lake.shards import Block, ShardReader, regular_sampling_bytes, shard_bytes
 from smspace.lake.store import Store
 
@@ -40,12 +40,15 @@ class PartRecord:
     n_motor: int
     sensor_shape: tuple[int, ...] | None  # shards only
     sensor_dtype: str | None
+    # what made the bytes, where they were made (a Ray worker's SAPIEN and GPU may not be ours);
+    # None for a part found already stored, written by an earlier command
+    software: dict[str, str] | None = None
 
     @classmethod
     def of(cls, part: int, data: bytes, count: int, n_motor: int, **shard: Any) -> PartRecord:
         """The record of a part's bytes; `shard`: stats, sensor_shape and sensor_dtype of a shard."""
         digests = hashlib.sha256(data).hexdigest(), hashlib.md5(data, usedforsecurity=False).hexdigest()
-        fields = {"stats": None, "sensor_shape": None, "sensor_dtype": None} | shard
+        fields = {"stats": None, "sensor_shape": None, "sensor_dtype": None, "software": None} | shard
         return cls(part, part_file(part), len(data), *digests, count, n_motor=n_motor, **fields)
 
     def entry(self) -> dict[str, Any]:
@@ -104,7 +107,7 @@ def write_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord:
         m, p = world.regular_sampling()
         data = regular_sampling_bytes(m, p)
         folder.put(REGULAR_FILE, data)
-        return PartRecord.of(part, data, len(m), m.shape[1])
+        return PartRecord.of(part, data, len(m), m.shape[1], software=made_with(cfg.setup))
     rng = shard_rng(cfg, part)
     lo, hi = cfg.shard_range(part)
     blocks = [
@@ -122,7 +125,7 @@ def write_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord:
     }
     data = shard_bytes(blocks, metadata)
     folder.put(shard_name(part), data)
-    return _shard_record(part, data, blocks, stats)
+    return replace(_shard_record(part, data, blocks, stats), software=made_with(cfg.setup))
 
 
 def verify_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord | None:
@@ -148,6 +151,12 @@ def verify_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord | None:
     if not blocks or sum(len(b.transitions) for b in blocks) != hi - lo:
         return None
     return _shard_record(part, data, blocks, stats)
+
+
+def made_with(setup: str) -> dict[str, str]:
+    """The versions that shaped a part's bytes in this process: the libraries, and the setup's own
+    (SAPIEN, the Vulkan driver and device for the arm)."""
+    return software_versions() | get_setup(setup).provenance()
 
 
 def preflight(setup: str) -> None:

@@ -48,7 +48,7 @@ arm_ambiguity() {
 reports() {
   for study in grid arm grid-nh25 grid6 arm-more arm6; do
     if compgen -G "$RUNS/$study/*/metrics.parquet" >/dev/null; then
-      "$BIN/smtrain" report "$RUNS/$study"/* --out "docs/reproduction/$study"
+      "$BIN/smtrain" report "$RUNS/$study" --out "docs/reproduction/$study"
     fi
   done
 }

@@ -32,7 +32,9 @@ __all__ = [
     "generate",
     "load_dataset",
     "open_lake",
+    "open_run",
     "resume",
+    "run_study",
     "spatial_scores",
 ]
 
@@ -52,6 +54,8 @@ _WHERE = {
     "load_dataset": "smspace.api",
     "open_lake": "smspace.api",
     "resume": "smspace.api",
+    "open_run": "smspace.api",
+    "run_study": "smspace.api",
     "fit": "smspace.api",
 }
 

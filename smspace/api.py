@@ -120,3 +120,21 @@ def resume(run: str | Path | RunDir, steps: int | None = None) -> Run:
     started = plan.start()
     run_fit(plan.cfg, started, resume=True)
     return Run(started.store)
+
+
+def open_run(where: str | Path | RunDir) -> Run:
+    """An existing run folder (a folder or an fsspec URL), to read its config, metrics and h."""
+    return Run(RunDir.open(where.store if isinstance(where, RunDir) else where).store)
+
+
+def run_study(
+    study_file: str | Path,
+    out: str | Path | None = None,
+    lake: Lake | str | Path | None = None,
+    workers: int | None = None,
+) -> list[Run]:
+    """Run (or resume, or extend) a study file (docs/STUDIES.md), as `smtrain sweep STUDY.toml`."""
+    from smspace.study.run import run_study as run
+
+    store = lake.store if isinstance(lake, Lake) else open_lake(lake).store
+    return [Run(r.store) for r in run(study_file, store, None if out is None else str(out), workers=workers)]

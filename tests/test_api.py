@@ -27,6 +27,8 @@ def test_the_examples_of_docs_api_run(tmp_path, monkeypatch):
     assert namespace["run"].config.extensions == [{"from_steps": 200, "to_steps": 300}]
     assert [row["step"] for row in namespace["run"].metrics()] == [0, 100, 200, 300]
     assert namespace["h"].shape == (125, 3)
+    assert sorted(r.config.n_h for r in namespace["study_runs"]) == [2, 3]
+    assert (tmp_path / "runs" / "tiny" / "n_h=2" / "grid-seed7-MM-nh2-seed7" / "tensorboard").is_dir()
 
 
 def test_what_is_public_is_named_and_loads():

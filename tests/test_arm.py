@@ -110,6 +110,10 @@ def test_modes_validate_and_camera_stays_inside_the_walls(arm_lake):
         np.testing.assert_allclose(tr.p_t, planar_fk(tr.m_t), atol=5e-6)
     mm = Dataset.open("arm-seed2-MM", arm_lake).read_all()
     assert np.all(mm.shift_t == 0)
+    # what rendered the pixels, recorded by the worker that rendered them
+    software = Dataset.open("arm-seed2-MM", arm_lake).manifest.software
+    assert software["sapien"] == "3.0.3" and software["vulkan_device"] not in ("", "unknown")
+    assert software["vulkan_driver"].startswith(("lavapipe, Mesa 25.", "NVRM", "the system's Vulkan driver"))
 
 
 def test_same_bytes_with_one_and_two_workers(arm_lake, tmp_path):

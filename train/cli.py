@@ -348,17 +348,45 @@ def ls_(runs, as_json) -> None:
 @click.option("--json", "as_json", is_flag=True)
 @friendly_errors
 def info(run, as_json) -> None:
-    """Describe one run: config, state, last metrics."""
+    """Describe one run: config, state, last metrics, and what made it (the software and machine
+    of each training session, the software that made its dataset)."""
     from smspace.train.run_dir import RunDir
 
-    summary = _run_summary(run) | {"config": RunDir.open(run).config.to_dict()}
+    cfg = RunDir.open(run).config
+    summary = _run_summary(run) | {"config": cfg.to_dict(), "dataset_software": _dataset_software(cfg.dataset)}
     if as_json:
         click.echo(json.dumps(summary, indent=1))
         return
     for key, value in summary.items():
-        if key != "config":
+        if key not in ("config", "dataset_software"):
             click.echo(f"{key:>12}: {value}")
-    click.echo(f"{'config':>12}: {json.dumps(summary['config'])}")
+    for i, session in enumerate(cfg.sessions):
+        click.echo(f"{'session ' + str(i + 1):>12}: {_session_line(session)}")
+    software = summary["dataset_software"]
+    shown = ", ".join(f"{k} {v}" for k, v in software.items()) if software else "unknown (dataset not readable here)"
+    click.echo(f"{'dataset made':>12}: {shown}")
+    click.echo(f"{'config':>12}: {json.dumps({k: v for k, v in summary['config'].items() if k != 'sessions'})}")
+
+
+def _session_line(session: dict) -> str:
+    commit = session.get("git_commit") or ""
+    shown = f" ({commit[:12]}{'+dirty' if commit.endswith('+dirty') else ''})" if commit else ""
+    return (
+        f"{session.get('started')}: smspace {session.get('smspace')}" + shown
+        + f", torch {session.get('torch')}, Python {session.get('python')}, {session.get('cpu')} "
+        + f"[{' '.join(session.get('cpu_vector_extensions', []))}; torch uses {session.get('torch_cpu_capability')}]"
+        + f", device {session.get('device')}, {session.get('threads')} thread(s), host {session.get('host')}"
+    )  # fmt: skip
+
+
+def _dataset_software(where: str) -> dict | None:
+    """The software its manifest records, or None where the dataset cannot be read from here."""
+    from smspace.lake.manifest import load_manifest
+
+    try:
+        return load_manifest(where).software
+    except (SmspaceError, OSError):
+        return None
 
 
 @main.command()

@@ -74,6 +74,8 @@ class TrainConfig:
     # how the run was extended (train/terms.py, rule 3): [{"from_steps": …, "to_steps": …}, …]
     extensions: list[dict[str, int]] = field(default_factory=list)
     run_id: str = ""  # given when the run folder is created; every file of the run carries it
+    # what each training session ran on (common/provenance.py): smspace, git commit, torch, CPU, device
+    sessions: list[dict[str, Any]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         for name in ("lr_start", "lr_end"):

@@ -182,6 +182,8 @@ def train_ensemble(
     try:
         for run in runs:
             run.claim()  # before anything is recorded: a run another process trains is left untouched
+        for run in runs:
+            run.record_session(run.config.device, threads)
         _train_claimed(runs, resume, device, progress, on_step)
     finally:
         for run in runs:

@@ -210,6 +210,8 @@ def fit(cfg: TrainConfig, run: RunDir, resume: bool = False, ranks: Ranks = SING
     if ranks.primary:
         run.claim()  # before anything is recorded: a run another process trains is left untouched
     try:
+        if ranks.primary:
+            run.record_session(cfg.device, cfg.threads)
         return _fit_claimed(cfg, run, resume, ranks, device)
     finally:
         run.release()  # the lock ends with the training, not whenever the RunDir is collected

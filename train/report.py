@@ -132,75 +132,169 @@ def by_mode(runs: list[RunData]) -> dict[str, list[RunData]]:
     return {m: groups[m] for m in order}
 
 
+POSITION_UNITS = {"grid": "cells", "grid6": "cells", "arm": "m", "arm6": "m"}  # docs/MODEL.md §2
+AXIS_LABELS = {
+    "eval_loss": "evaluation loss (MSE on normalised s)",
+    "d_topo": "D_topo (lower: topology kept)",
+    "d_metric": "D_metric (lower: metric kept)",
+}
+
+
+def position_unit(setup: str) -> str:
+    return POSITION_UNITS.get(setup, "the setup's units")
+
+
 def curves_figure(study: Study, path: Path) -> None:
     """Loss, D_topo, D_metric against step: mean ± std over runs per mode, faint per-run lines; at
     the steps every run of the study reached (runs in progress are cut there)."""
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8))
     steps = np.array(study.steps)
+    handles = []
     for ax, (key, label) in zip(axes, METRICS, strict=True):
+        handles = []
         for mode, runs in by_mode(study.runs).items():
             colour = MODE_COLOURS.get(mode, "tab:gray")
             values = np.stack([r.values(key, study.steps) for r in runs])
             for v in values:
                 ax.plot(steps, v, color=colour, alpha=0.15, linewidth=0.7)
             mean, std = values.mean(0), values.std(0)
-            ax.plot(steps, mean, color=colour, linewidth=2, label=f"{mode} (n={len(runs)})")
+            label = f"{mode} (mean of {len(runs)} run(s) ± std)"
+            (line,) = ax.plot(steps, mean, color=colour, linewidth=2, label=label)
+            handles.append(line)
             # on the log panels a band below zero means nothing: floor it at the lowest run
             lower = np.maximum(mean - std, values.min(0)) if key != "d_metric" else mean - std
             ax.fill_between(steps, lower, mean + std, color=colour, alpha=0.3)
-        ax.set_xlabel("step")
+        ax.set_xlabel("training step")
+        ax.set_ylabel(AXIS_LABELS[key])
         ax.set_title(label)
         if key != "d_metric":
             ax.set_yscale("log")
-        ax.grid(alpha=0.3)
-    axes[0].legend()
-    fig.tight_layout()
+        ax.grid(alpha=0.3, which="both")
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4), useMathText=True)
+    fig.suptitle(f"{study.name}: {study.label}", fontsize=13)
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
+    fig.tight_layout(rect=(0, 0.07, 1, 0.95))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
 
+def position_colours(p: np.ndarray) -> np.ndarray:
+    """A colour per position, as in the paper's figure: red grows with p_x, blue with p_y, so
+    that neighbours in space have neighbouring colours in every panel."""
+    lo, hi = p.min(0), p.max(0)
+    u = (p - lo) / np.where(hi > lo, hi - lo, 1.0)
+    x, y = u[:, 0], u[:, 1] if p.shape[1] > 1 else np.zeros(len(p))
+    return np.clip(np.stack([0.15 + 0.8 * x, 0.35 + 0.3 * (1 - np.abs(x - y)), 0.15 + 0.8 * y], 1), 0, 1)
+
+
 def projection_figure(run: RunData, step: int, path: Path) -> None:
-    """Normalised regular motors, h, p with ĥ (and lines), predicted vs true s_t1 (first 3 dims)."""
+    """Motor space, h and p with ĥ, every point coloured by its position p; and the predicted s_t1
+    against the true one (image mosaics for a camera)."""
     import matplotlib.pyplot as plt
 
     h, p = run.run.embeddings(step)
     h, p = h.astype(np.float64), p.astype(np.float64)
     h_hat = affine_projection(h, p)
+    colours = position_colours(p)
+    unit = position_unit(run.setup)
     last = next(r for r in run.rows if int(r["step"]) == step)
-    fig = plt.figure(figsize=(20, 5))
+    fig = plt.figure(figsize=(21, 5.6))
+    dataset = _dataset(run)
     ax = fig.add_subplot(1, 4, 1, projection="3d")
-    try:
-        ds = Dataset(run.run.config.dataset)
-        m_norm, _ = normalisers(ds.manifest)
-        m = m_norm(ds.regular_sampling()[0])
-        ax.scatter(*np.pad(m[:, :3], ((0, 0), (0, max(0, 3 - m.shape[1])))).T, s=8, color="tab:blue")
-    except SmspaceError:
-        ax.text2D(0.1, 0.5, "dataset not available", transform=ax.transAxes)
-    ax.set_title("motor space (normalised regular sampling)")
+    if dataset is not None:
+        m_norm, _ = normalisers(dataset.manifest)
+        m = m_norm(dataset.regular_sampling()[0])
+        ax.scatter(*np.pad(m[:, :3], ((0, 0), (0, max(0, 3 - m.shape[1])))).T, s=10, c=colours)
+        _axis_labels(ax, ["m1", "m2", "m3"], "(normalised)")
+    else:
+        ax.text2D(0.1, 0.5, "dataset not available here", transform=ax.transAxes)
+    ax.set_title("motor space: regular sampling")
     ax = fig.add_subplot(1, 4, 2, projection="3d")
     h3, shown = first_three(h)
-    ax.scatter(*h3.T, s=8, color="tab:red")
-    ax.set_title(f"encoding space h{shown}   D_topo = {last['d_topo']:.2e}")
+    ax.scatter(*h3.T, s=10, c=colours)
+    _axis_labels(ax, ["PC1", "PC2", "PC3"] if shown else ["h1", "h2", "h3"], "")
+    ax.set_title(f"encoding space h{shown}\nD_topo = {last['d_topo']:.2e}")
     ax = fig.add_subplot(1, 4, 3)
     for a, b in zip(p, h_hat, strict=True):
-        ax.plot([a[0], b[0]], [a[1], b[1]], color="tab:red", linewidth=0.5, alpha=0.6)
-    ax.scatter(p[:, 0], p[:, 1], facecolors="none", edgecolors="tab:blue", s=40, label="p")
-    ax.scatter(h_hat[:, 0], h_hat[:, 1], color="tab:red", s=6, label="ĥ (affine fit of p on h)")
+        ax.plot([a[0], b[0]], [a[1], b[1]], color="0.6", linewidth=0.5)
+    ax.scatter(p[:, 0], p[:, 1], facecolors="none", edgecolors=colours, s=60, linewidths=1.2, label="p (true position)")
+    ax.scatter(h_hat[:, 0], h_hat[:, 1], c=colours, s=10, label="ĥ (best affine image of h)")
     ax.set_aspect("equal")
-    ax.legend(loc="upper right", fontsize=8)
-    ax.set_title(f"position space   D_metric = {last['d_metric']:.3f}")
-    ax = fig.add_subplot(1, 4, 4, projection="3d")
+    ax.set_xlabel(f"p_x ({unit})")
+    ax.set_ylabel(f"p_y ({unit})")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
+    ax.set_title(f"position space\nD_metric = {last['d_metric']:.3f} {unit}")
     true, pred = run.run.true_s_t1(), run.run.predictions(step)
-    ax.scatter(*true[:, :3].T, facecolors="none", edgecolors="tab:green", s=40, label="true")
-    ax.scatter(*pred[:, :3].T, color="m", s=10, label="predicted")
-    ax.legend(fontsize=8)
-    ax.set_title(f"sensory space s_t1 (first 3 dims)   loss = {last['eval_loss']:.3g}")
-    fig.suptitle(f"{run.name} at step {step}")
-    fig.tight_layout()
+    shape = list(dataset.manifest.sensor_shape) if dataset is not None else None
+    if shape is not None and len(shape) == 3 and shape[-1] in (1, 3):
+        _image_mosaic(fig.add_subplot(1, 4, 4), true, pred, shape, dataset)
+    else:
+        _prediction_scatter(fig.add_subplot(1, 4, 4), true, pred)
+    fig.axes[-1].set_title(f"s_t1, predicted against true\nevaluation loss = {last['eval_loss']:.3g}")
+    fig.suptitle(
+        f"{run.name} at step {step} ({run.setup}, N_h = {run.n_h}, {run.mode}): "
+        "every point coloured by its position p (red grows with p_x, blue with p_y)",
+        fontsize=12,
+    )
+    fig.subplots_adjust(left=0.02, right=0.98, top=0.83, bottom=0.14, wspace=0.25)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _dataset(run: RunData) -> Dataset | None:
+    try:
+        return Dataset(run.run.config.dataset)
+    except SmspaceError:
+        return None
+
+
+def _axis_labels(ax, names: list[str], unit: str) -> None:
+    ax.set_xlabel(f"{names[0]} {unit}".strip(), labelpad=-2)
+    ax.set_ylabel(f"{names[1]} {unit}".strip(), labelpad=-2)
+    ax.set_zlabel(f"{names[2]} {unit}".strip(), labelpad=-2)
+    ax.tick_params(labelsize=7, pad=0)
+
+
+def _prediction_scatter(ax, true: np.ndarray, pred: np.ndarray) -> None:
+    """Each sensor component: predicted against true (normalised); on the diagonal when right."""
+    dims = true.shape[1]
+    for d in range(min(dims, 8)):
+        ax.scatter(true[:, d], pred[:, d], s=8, alpha=0.6, label=f"s[{d}]")
+    lim = [min(true.min(), pred.min()) - 0.05, max(true.max(), pred.max()) + 0.05]
+    ax.plot(lim, lim, color="0.3", linewidth=0.8, linestyle="--")
+    ax.set_xlabel("true s_t1 (normalised)")
+    ax.set_ylabel("predicted s_t1 (normalised)")
+    ax.set_aspect("equal")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=min(dims, 8), fontsize=8, frameon=False)
+
+
+def _image_mosaic(ax, true: np.ndarray, pred: np.ndarray, shape: list[int], dataset: Dataset, n: int = 8) -> None:
+    """The first n evaluation transitions in raw pixels, in blocks of four: a row of true images
+    above the row of their predictions."""
+    _, s_norm = normalisers(dataset.manifest)
+    n = min(n, len(true))
+    pixels = [np.clip(s_norm.inverse(x[:n]), 0, 255).reshape(n, *shape) / 255.0 for x in (true, pred)]
+    height, width, channels = shape
+    per_row = min(4, n)
+
+    def row(images: np.ndarray) -> np.ndarray:
+        tiles = [np.pad(img, ((1, 1), (1, 1), (0, 0)), constant_values=1.0) for img in images]
+        tiles += [np.ones_like(tiles[0])] * (per_row - len(tiles))
+        return np.concatenate(tiles, 1)
+
+    rows, ticks, names = [], [], []
+    for start in range(0, n, per_row):
+        for label, images in (("true", pixels[0]), ("predicted", pixels[1])):
+            ticks.append(sum(r.shape[0] for r in rows) + (height + 2) / 2)
+            names.append(f"{label} {start}-{min(start + per_row, n) - 1}")
+            rows.append(row(images[start : start + per_row]))
+        rows.append(np.ones((4, rows[-1].shape[1], channels)))
+    ax.imshow(np.concatenate(rows[:-1], 0).squeeze(), interpolation="nearest")
+    ax.set_yticks(ticks, names, fontsize=8)
+    ax.set_xticks([])
+    ax.set_xlabel(f"the first {n} evaluation transitions, {height}x{width} pixels each")
 
 
 def first_three(h: np.ndarray) -> tuple[np.ndarray, str]:
@@ -273,23 +367,99 @@ def notices(studies: list[Study]) -> list[str]:
     return lines
 
 
+def expand_runs(paths: list[Path | str]) -> list[Path | str]:
+    """Run folders, given themselves or by the folder of a study that holds them (its runs, and
+    those of its grid's sub-folders); anything else is refused in one line."""
+    from smspace.lake.store import open_store
+    from smspace.train.run_dir import CONFIG
+
+    found: list[Path | str] = []
+    for path in paths:
+        store = open_store(path)
+        if store.is_file():
+            raise SmspaceError(f"{path} is a file, not a run folder or a study folder")
+        if store.exists(CONFIG):
+            found.append(path)
+            continue
+        inside = sorted({name.split("/")[0] for name in store.list(f"*/{CONFIG}")})
+        nested = sorted({"/".join(name.split("/")[:2]) for name in store.list(f"*/*/{CONFIG}")})
+        runs = [f"{store.where}/{name}" for name in [*inside, *nested]]
+        if not runs:
+            raise SmspaceError(f"{path} holds no run folders (no {CONFIG} in it or below)")
+        found += [Path(r) if isinstance(store.where, Path) else r for r in runs]
+    return found
+
+
+def made_with(runs: list[RunData]) -> list[str]:
+    """The software and machines behind the runs and their datasets, as distinct values."""
+    sessions = [s for r in runs for s in r.run.config.sessions]
+    lines = []
+    for key, label in (("smspace", "smspace"), ("git_commit", "git commit"), ("torch", "torch"),
+                       ("python", "Python"), ("cpu", "CPU"), ("torch_cpu_capability", "torch CPU kernels"),
+                       ("device", "device")):  # fmt: skip
+        values = sorted({str(s.get(key)) for s in sessions if s.get(key) is not None})
+        if values:
+            lines.append(f"- {label}: {', '.join(values)}")
+    if not sessions:
+        lines.append("- training sessions: not recorded (runs of an older smspace)")
+    software: dict[str, set[str]] = defaultdict(set)
+    for r in runs:
+        dataset = _dataset(r)
+        for key, value in (dataset.manifest.software if dataset is not None else {}).items():
+            software[key].add(str(value))
+    if software:
+        shown = "; ".join(f"{k} {', '.join(sorted(v))}" for k, v in software.items())
+        lines.append(f"- datasets made with: {shown}")
+    return lines
+
+
+def markdown_report(studies: list[Study], table: list[dict[str, Any]], figures: dict[str, list[Path]],
+                    notes: list[str], out: Path) -> Path:  # fmt: skip
+    """report.md: one page per report, the tables and the figures of every study."""
+    lines = ["# smspace report", ""]
+    runs = sum(len(st.runs) for st in studies)
+    lines += [f"{runs} run(s) in {len(studies)} study(ies), drawn by `smtrain report`.", ""]
+    lines += [f"> {note.removeprefix('report: ')}" for note in notes] + ([""] if notes else [])
+    for study in studies:
+        lines += [f"## {study.name}: {study.label}", ""]
+        lines += ["| mode | runs | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|"]
+        for row in (r for r in table if r["study"] == study.name):
+            cells = [_mean_std(row[f"{k}_mean"], row[f"{k}_std"], row["runs"]) for k, _ in METRICS]
+            lines.append(f"| {row['mode']} | {row['runs']} | {row['step']} | " + " | ".join(cells) + " |")
+        lines += ["", "Mean ± standard deviation over the runs (one world each) at the last step all reached.", ""]
+        for figure in figures[study.name]:
+            lines += [f"![{figure.stem}]({figure.name})", ""]
+        lines += ["### Runs", "", "| run | mode | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|"]
+        for r in study.runs:
+            at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
+            lines.append(f"| {r.name} | {r.mode} | {study.final_step} | " + " | ".join(f"{v:.3g}" for v in at) + " |")
+        lines += ["", "### Made with", "", *made_with(study.runs), ""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
 def report(paths: list[Path], out: Path) -> tuple[list[Path], list[str]]:
-    """The figures and tables of the runs, and the notices to show beside them."""
+    """The figures and tables of the runs (given as run folders or study folders), the one-page
+    report.md that holds them, and the notices to show beside them."""
     import matplotlib
 
     matplotlib.use("Agg")
-    studies = by_study(load_runs(paths))
+    studies = by_study(load_runs(expand_runs(paths)))
     out.mkdir(parents=True, exist_ok=True)
-    written, table = [], []
+    written, table, figures = [], [], {}
     for study in studies:
         # one study keeps the plain names; several are told apart by a prefix and never averaged together
         prefix = "" if len(studies) == 1 else f"{study.name}_"
-        curves_figure(study, out / f"{prefix}curves.png")
-        written.append(out / f"{prefix}curves.png")
+        figures[study.name] = [out / f"{prefix}curves.png"]
+        curves_figure(study, figures[study.name][0])
         for mode, group in by_mode(study.runs).items():
             path = out / f"{prefix}projection_{mode}.png"
             projection_figure(group[0], study.final_step, path)
-            written.append(path)
+            figures[study.name].append(path)
+        written += figures[study.name]
         table += final_table(study)
     write_tables(studies, table, out)
-    return [*written, out / "final.csv", out / "final.md", out / "runs.csv"], notices(studies)
+    notes = notices(studies)
+    page = markdown_report(studies, table, figures, notes, out)
+    return [*written, out / "final.csv", out / "final.md", out / "runs.csv", page], notes

@@ -22,14 +22,17 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
+from smspace.common import provenance
 from smspace.common.errors import SmspaceError
 from smspace.common.locks import HeldLock
 from smspace.lake.store import Store, WriteConflict, open_store
+from smspace.train import tensorboard
 from smspace.train.config import TrainConfig
 
 CONFIG = "config.json"
 METRICS = "metrics.parquet"
 EMBEDDINGS = "embeddings"
+SUBFOLDERS = (EMBEDDINGS, tensorboard.FOLDER)
 CHECKPOINT = "checkpoint.pt"
 PREVIOUS = "checkpoint-previous.pt"  # members of an ensemble: the evaluation before, to roll back to
 STATUS = "status.json"
@@ -106,10 +109,10 @@ class RunDir:
         if self._lock is None:
             self._lock = self.store.hold(LOCK, f"{self.path} is being trained by another process")
         if self._versions is None:
-            found = self.store.fingerprints("*") | {
-                f"{EMBEDDINGS}/{name}": tag for name, tag in self._embeddings().fingerprints("*").items()
-            }
-            self._versions = dict(found)
+            found = dict(self.store.fingerprints("*"))
+            for sub in SUBFOLDERS:
+                found |= {f"{sub}/{name}": tag for name, tag in self.store.child(sub).fingerprints("*").items()}
+            self._versions = found
 
     def release(self) -> None:
         """Stop being the trainer (to hand the run to another process, which claims it)."""
@@ -118,11 +121,11 @@ class RunDir:
             self._lock = None
         self._versions = None
 
-    def _write(self, name: str, data: bytes, in_embeddings: bool = False) -> None:
+    def _write(self, name: str, data: bytes, sub: str | None = None) -> None:
         """Every file of the run is written here, whole; by a claiming process only over the
-        version it last saw (a new file: only if still absent)."""
-        folder = self._embeddings() if in_embeddings else self.store
-        key = f"{EMBEDDINGS}/{name}" if in_embeddings else name
+        version it last saw (a new file: only if still absent). `sub`: a sub-folder (SUBFOLDERS)."""
+        folder = self.store.child(sub) if sub else self.store
+        key = f"{sub}/{name}" if sub else name
         if self._versions is None:
             folder.put(name, data)
             return
@@ -137,10 +140,10 @@ class RunDir:
                 "this one stopped and left it to the other"
             ) from None
 
-    def _delete(self, name: str, in_embeddings: bool = False) -> None:
-        (self._embeddings() if in_embeddings else self.store).delete(name)
+    def _delete(self, name: str, sub: str | None = None) -> None:
+        (self.store.child(sub) if sub else self.store).delete(name)
         if self._versions is not None:
-            self._versions[f"{EMBEDDINGS}/{name}" if in_embeddings else name] = None
+            self._versions[f"{sub}/{name}" if sub else name] = None
 
     @property
     def run_id(self) -> str:
@@ -184,20 +187,30 @@ class RunDir:
     def write_config(self, cfg: TrainConfig) -> None:
         self._write(CONFIG, _config_bytes(cfg))
 
+    def record_session(self, device: str, threads: int) -> None:
+        """Add what this training session runs on to config.json (by the process that claimed it)."""
+        cfg = self.config
+        self.write_config(replace(cfg, sessions=[*cfg.sessions, provenance.session(device, threads)]))
+
     @classmethod
     def open(cls, where: Path | str | Store) -> RunDir:
         run = cls(where)
-        if not run.store.exists(CONFIG):
+        try:
+            found = run.store.exists(CONFIG)
+        except NotADirectoryError:
+            found = False
+        if not found:
             raise SmspaceError(f"{run.path} is not a run folder (no {CONFIG})")
         return run
 
     def _clear(self) -> None:
         for name in (CONFIG, METRICS, CHECKPOINT, PREVIOUS, STATUS):
             self._delete(name)
-        embeddings = self._embeddings()
-        for name in embeddings.list("*"):
-            self._delete(name, in_embeddings=True)
-        embeddings.remove_folder()
+        for sub in SUBFOLDERS:
+            folder = self.store.child(sub)
+            for name in folder.list("*"):
+                self._delete(name, sub=sub)
+            folder.remove_folder()
         self.store.remove_partials()
 
     def _read(self, name: str, store: Store | None = None) -> bytes:
@@ -266,9 +279,17 @@ class RunDir:
             "p": _fixed_list(p),
         }
         table = pa.table(columns, metadata={"step": str(step), RUN_ID: self.run_id})
-        self._write(embedding_file(step), _parquet_bytes(table), in_embeddings=True)
+        self._write(embedding_file(step), _parquet_bytes(table), sub=EMBEDDINGS)
         for name, value in extra.items():
-            self._write(array_file(name, step), _npy_bytes(value), in_embeddings=True)
+            self._write(array_file(name, step), _npy_bytes(value), sub=EMBEDDINGS)
+
+    def write_tensorboard(self, row: dict[str, Any], h: np.ndarray, p: np.ndarray) -> None:
+        """TensorBoard's view of an evaluation (train/tensorboard.py): its scalars, and h as the
+        projector's embedding."""
+        self.store.child(tensorboard.FOLDER).make()
+        self._write(tensorboard.event_file(row["step"]), tensorboard.evaluation_events(row), sub=tensorboard.FOLDER)
+        for name, data in tensorboard.projector_files(h, p, row["step"]).items():
+            self._write(name, data, sub=tensorboard.FOLDER)
 
     def write_evaluation(
         self,
@@ -286,6 +307,7 @@ class RunDir:
         step = rows[-1]["step"]
         extra = {PREDICTED: pred} | ({TRUE: true} if true is not None else {})
         self.write_embeddings(step, h, p, extra)
+        self.write_tensorboard(rows[-1], h, p)
         self.write_metrics(rows)
         self.save_checkpoint(checkpoint, keep_previous)
         self.set_status("running", step)
@@ -310,7 +332,12 @@ class RunDir:
         for name in folder.list("*"):
             match = EVALUATION_FILE.fullmatch(name)
             if match and int(match["step"]) > step:
-                self._delete(name, in_embeddings=True)
+                self._delete(name, sub=EMBEDDINGS)
+        board = self.store.child(tensorboard.FOLDER)
+        board.remove_partials()
+        for name in board.list("events.out.tfevents.*"):
+            if int(name.split(".")[3]) > step:
+                self._delete(name, sub=tensorboard.FOLDER)
 
     # -- checkpoints --------------------------------------------------------------------------
     def save_checkpoint(self, state: dict[str, Any], keep_previous: bool = False) -> None:

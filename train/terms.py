@@ -29,7 +29,7 @@ from smspace.train.config import TrainConfig
 
 PER_RUN = ("dataset", "dataset_id", "dataset_config_hash", "dataset_shards_sha256", "mode", "seed", "run_id")
 EXECUTION = ("device", "threads", "loader_workers", "world_size")  # how a run ran, not what it computed
-HISTORY = ("extensions",)
+HISTORY = ("extensions", "sessions")  # what happened to a run, not what it computes
 STUDY = "study.json"
 
 

@@ -83,6 +83,8 @@ class Setup:
     default_shard_size: int = 32768  # transitions per shard: arm shards are smaller so workers stay balanced
     bytes_per_transition: int = 16  # an upper estimate of the zstd shards (measured: grid 15, arm 554), for disk checks
     preflight: Callable[[], None] = _nothing  # fails early (before anything is written) if unusable
+    # versions beyond the libraries' that shape the bytes (a renderer, its driver and device)
+    provenance: Callable[[], dict[str, str]] = dict
     # Pictures of the world itself for `smgen preview`: (world, folder) → files written.
     preview: Callable[[Any, Path], list[Path]] | None = None
     # Extra panels for `smgen view`: (recording, world, transitions, time columns); None: none.

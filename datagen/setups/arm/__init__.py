@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from smspace.datagen.setups.arm.views import log_room_map, write_preview
-from smspace.datagen.setups.arm.vulkan import require_render_device
+from smspace.datagen.setups.arm.vulkan import render_provenance, require_render_device
 from smspace.datagen.setups.arm.world import SHIFT_BOUND, ArmWorld, planar_fk
 from smspace.datagen.setups.base import Setup
 
@@ -21,6 +21,7 @@ _COMMON = dict(
     default_shard_size=8192,
     bytes_per_transition=640,
     preflight=require_render_device,
+    provenance=render_provenance,
     preview=write_preview,
     view_world=log_room_map,
 )

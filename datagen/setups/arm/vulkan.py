@@ -6,6 +6,7 @@ On a machine without a GPU that is Mesa 25 lavapipe unpacked by scripts/setup-vu
 
 from __future__ import annotations
 
+import gzip
 import os
 from pathlib import Path
 
@@ -61,3 +62,33 @@ def require_render_device() -> None:
         except RuntimeError as e:
             raise SmspaceError(f"no usable Vulkan device for SAPIEN ({e}): {INSTALL_HINT}") from e
     _checked = True
+
+
+def render_provenance() -> dict[str, str]:
+    """What rendered the pixels: SAPIEN, the Vulkan device, and its driver (lavapipe's Mesa
+    version, or NVIDIA's kernel driver)."""
+    require_render_device()
+    import sapien
+
+    summary = sapien.render.get_device_summary()
+    device = next((ln.split(":", 1)[1].strip() for ln in summary.splitlines() if ln.startswith("GPU:")), "unknown")
+    return {"sapien": sapien.__version__, "vulkan_device": device, "vulkan_driver": _driver()}
+
+
+def _driver() -> str:
+    icd = os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES") or ""
+    ours = lavapipe_icd()
+    if ours is not None and icd == str(ours):
+        changelog = ours.parent / "tree/usr/share/doc/mesa-vulkan-drivers/changelog.Debian.gz"
+        try:
+            with gzip.open(changelog, "rt") as fh:
+                first = fh.readline()  # mesa (25.0.7-2~bpo12+1) bookworm-backports; urgency=medium
+            return f"lavapipe, Mesa {first.split('(', 1)[1].split(')', 1)[0]}"
+        except (OSError, IndexError):
+            return "lavapipe, Mesa (version unknown)"
+    if has_nvidia_gpu():
+        try:
+            return Path("/proc/driver/nvidia/version").read_text().splitlines()[0].strip()
+        except (OSError, IndexError):
+            return "NVIDIA (version unknown)"
+    return f"the system's Vulkan driver ({icd or 'found by the Vulkan loader'})"
