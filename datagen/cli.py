@@ -18,6 +18,7 @@ from smspace.common.cli import (
     friendly_errors,
     on_interrupt,
 )
+from smspace.common.completion import complete_datasets, complete_modes
 from smspace.common.errors import SmspaceError
 from smspace.common.rerun_output import view_options
 from smspace.datagen.setups import SETUPS, setup_names
@@ -38,7 +39,9 @@ def main() -> None:
     required=True,
     help="; ".join(f"{s.name}: {s.description}" for s in SETUPS.values()) + "; or a setup a plugin registers",
 )
-@click.option("--mode", required=True, help="MEM, MM, MME, several separated by commas, or all.")
+@click.option(
+    "--mode", required=True, shell_complete=complete_modes, help="MEM, MM, MME, several separated by commas, or all."
+)
 @click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=1, help="Number of worlds; seeds SEED, SEED+1, …")
 @click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, help="Seed of the first world.")
@@ -125,7 +128,7 @@ def _echo_committed(store, results) -> None:
 
 
 @main.command()
-@click.argument("datasets", nargs=-1, required=True)
+@click.argument("datasets", nargs=-1, required=True, shell_complete=complete_datasets)
 @LAKE_OPTION
 @friendly_errors
 def finalize(datasets, lake) -> None:
@@ -163,7 +166,7 @@ def ls_(lake, as_json) -> None:
 
 
 @main.command()
-@click.argument("dataset")
+@click.argument("dataset", shell_complete=complete_datasets)
 @LAKE_OPTION
 @click.option("--json", "as_json", is_flag=True)
 @friendly_errors
@@ -181,7 +184,7 @@ def info(dataset, lake, as_json) -> None:
 
 
 @main.command()
-@click.argument("datasets", nargs=-1, required=True)
+@click.argument("datasets", nargs=-1, required=True, shell_complete=complete_datasets)
 @LAKE_OPTION
 @friendly_errors
 def validate(datasets, lake) -> None:
@@ -203,7 +206,7 @@ def validate(datasets, lake) -> None:
 
 
 @main.command()
-@click.argument("dataset", required=False)
+@click.argument("dataset", required=False, shell_complete=complete_datasets)
 @click.option(
     "--setup",
     "setup_name",
@@ -232,7 +235,7 @@ def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
 
 
 @main.command()
-@click.argument("dataset")
+@click.argument("dataset", shell_complete=complete_datasets)
 @LAKE_OPTION
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="Only the first N transitions.")
 @view_options
@@ -249,7 +252,7 @@ def view(dataset, lake, limit, output) -> None:
 
 
 @main.command()
-@click.argument("dataset")
+@click.argument("dataset", shell_complete=complete_datasets)
 @LAKE_OPTION
 @click.option("--format", "fmt", type=click.Choice(["foxglove", "parquet"]), required=True)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="The file to write.")

@@ -20,6 +20,7 @@ from smspace.common.cli import (
     friendly_errors,
     on_interrupt,
 )
+from smspace.common.completion import complete_datasets, complete_modes
 from smspace.common.errors import Interrupted, SmspaceError
 from smspace.common.rerun_output import view_options
 from smspace.datagen.setups import setup_names  # the command line composes generation and training
@@ -43,7 +44,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("dataset", required=False)
+@click.argument("dataset", required=False, shell_complete=complete_datasets)
 @LAKE_OPTION
 @click.option("--out", default=None, help="Run folder, or an fsspec URL [default: runs/<dataset>-nh<N>-seed<S>].")
 @config_options()
@@ -132,7 +133,13 @@ def _attempt(action):
 @main.command()
 @click.argument("study_file", required=False, type=click.Path(path_type=Path))
 @click.option("--setup", "setup_name", type=click.Choice(setup_names()), help="A built-in or registered setup.")
-@click.option("--modes", default="MEM,MM,MME", show_default=True, help="Comma-separated modes, or all.")
+@click.option(
+    "--modes",
+    default="MEM,MM,MME",
+    show_default=True,
+    shell_complete=complete_modes,
+    help="Comma-separated modes, or all.",
+)
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
 @click.option(
     "--seed",

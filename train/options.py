@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from smspace.common.completion import complete_devices
 from smspace.train.config import MAX_LAYERS, MAX_WIDTH
 
 if TYPE_CHECKING:
@@ -99,8 +100,9 @@ def config_options(exclude: tuple[str, ...] = ()) -> Callable:
                     kind = POSITIVE_FINITE
                 else:
                     kind = click.IntRange(low, high) if isinstance(default, int) and bounded else type(default)
+                complete = {"shell_complete": complete_devices} if f.name == "device" else {}
                 option = click.option(
-                    flag_name(f), f.name, type=kind, default=default, show_default=True, help=help_text
+                    flag_name(f), f.name, type=kind, default=default, show_default=True, help=help_text, **complete
                 )
             fn = option(fn)
         return fn
