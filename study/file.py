@@ -9,7 +9,7 @@
     [train]                       # any field of `smtrain fit`'s flags, by its config name
     steps = 100000
     [grid]                        # optional: one sub-study per combination of these values
-    n_h = [3, 25]
+    n_h = [3, 25]                 # (`setup` may be a key too: one sub-study per setup)
     [run]                         # how it runs, not what it computes
     workers = 2
 
@@ -42,6 +42,7 @@ SECTIONS = ("study", "train", "grid", "run")
 RUN_KEYS = {"workers": 1, "gen_workers": 1, "max_ensemble": 1, "executor": None}
 EXECUTORS = ("local", "ray")
 NOT_TRAINABLE = ("seed",)  # a run's seed is its world's
+SETUP_KEY = "setup"  # the one [grid] key that is not a training field: a sub-study per setup
 
 
 @dataclass(frozen=True)
@@ -67,13 +68,17 @@ class StudyFile:
         keys = list(self.grid)
         return [dict(zip(keys, values, strict=True)) for values in itertools.product(*self.grid.values())]
 
+    def setup_of(self, combination: dict[str, Any]) -> str:
+        return combination.get(SETUP_KEY, self.setup)
+
     def config(self, combination: dict[str, Any]) -> TrainConfig:
         """The training template of one sub-study (its fields given, the others the defaults)."""
-        return TrainConfig(dataset="", **(self.train | combination))
+        trained = {k: v for k, v in combination.items() if k != SETUP_KEY}
+        return TrainConfig(dataset="", **(self.train | trained))
 
     def given(self, combination: dict[str, Any]) -> frozenset[str]:
         """The fields the file sets, which a later run may not silently take from a recorded study."""
-        return frozenset(self.train) | frozenset(combination)
+        return frozenset(self.train) | frozenset(k for k in combination if k != SETUP_KEY)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -118,14 +123,19 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
         if not isinstance(raw[section], dict):
             raise bad(section, "must be a table ([" + section + "])")
     study = dict(raw.get("study", {}))
-    if "setup" not in study:
-        raise bad("study.setup", "missing (the setup every dataset of the study is generated with)")
+    grid_setups = raw.get("grid", {}).get(SETUP_KEY)
+    if "setup" not in study and grid_setups is None:
+        raise bad("study.setup", "missing (the setup every dataset of the study is generated with, or grid.setup)")
+    if "setup" in study and grid_setups is not None:
+        raise bad("grid.setup", "is also set in [study]: give it in one place")
     known = {"name", "setup", "modes", "worlds", "seed", "transitions"}
     for key in study:
         if key not in known:
             raise bad(f"study.{key}", f"unknown key (keys: {', '.join(sorted(known))})")
-    setup = _string(study["setup"], bad, "study.setup")
-    _check_setup(setup, bad)
+    setup = ""
+    if "setup" in study:
+        setup = _string(study["setup"], bad, "study.setup")
+        _check_setup(setup, bad, "study.setup")
     name = _string(study.get("name", default_name), bad, "study.name")
     modes = _modes(study.get("modes", list(MODES)), bad)
     worlds = _integer(study.get("worlds", 1), bad, "study.worlds", 1, MAX_WORLDS)
@@ -142,7 +152,12 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
             raise bad(f"grid.{key}", "must be a non-empty list of values")
         if key in train:
             raise bad(f"grid.{key}", "is also set in [train]: give it in one place")
-        checked = [_train_value(fields_by_name, key, v, bad, f"grid.{key}") for v in values]
+        if key == SETUP_KEY:
+            checked = [_string(v, bad, "grid.setup") for v in values]
+            for setup_name in checked:
+                _check_setup(setup_name, bad, "grid.setup")
+        else:
+            checked = [_train_value(fields_by_name, key, v, bad, f"grid.{key}") for v in values]
         if len({json.dumps(v, sort_keys=True) for v in checked}) != len(checked):
             raise bad(f"grid.{key}", "names a value twice")
         grid[key] = checked
@@ -160,11 +175,11 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
     return resolved
 
 
-def _check_setup(setup: str, bad) -> None:
+def _check_setup(setup: str, bad, key: str) -> None:
     from smspace.datagen.setups import setup_names
 
     if setup not in setup_names():
-        raise bad("study.setup", f"unknown setup {setup!r} (one of {', '.join(setup_names())})")
+        raise bad(key, f"unknown setup {setup!r} (one of {', '.join(setup_names())})")
 
 
 def _string(value: Any, bad, key: str) -> str:

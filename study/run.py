@@ -41,7 +41,12 @@ def combinations(study: StudyFile, out: Store) -> list[Combination]:
     for values in study.combinations():
         name = folder_name(values)
         plan = SweepPlan(
-            study.setup, study.modes, study.world_seeds, study.config(values), study.transitions, study.given(values)
+            study.setup_of(values),
+            study.modes,
+            study.world_seeds,
+            study.config(values),
+            study.transitions,
+            study.given(values),
         )
         found.append(Combination(values, out.child(name) if name else out, plan))
     return found
@@ -112,6 +117,21 @@ def study_changes(study: StudyFile, out: Store, overwrite: bool) -> list[str]:
 # --- the dry run --------------------------------------------------------------------------------
 
 
+@dataclass
+class SetupProbe:
+    """What a dry run measures of one setup, once: its generator's rate and its shapes."""
+
+    gen_rate: float
+    n_sensor: int
+    n_regular: int
+
+    @classmethod
+    def of(cls, setup: str, seed: int, mode: str) -> SetupProbe:
+        world = get_setup(setup).build(seed)
+        rate = _generation_rate(world, mode)
+        return cls(rate, int(np.prod(world.sensor_shape)), len(world.regular_sampling()[0]))
+
+
 def dry_run(
     path: Path | str, lake: Store, out: Store | str | None, workers: int | None = None, overwrite: bool = False
 ) -> list[str]:
@@ -122,36 +142,40 @@ def dry_run(
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = study.run.get("gen_workers", workers)
     max_ensemble = study.run.get("max_ensemble", 150)
-    spec = get_setup(study.setup)
-    n = spec.default_transitions if study.transitions is None else study.transitions
     combos = combinations(study, out)
     for combo in combos:
         check_terms(combo.plan, combo.out, overwrite)  # what a real run would refuse
+    setups = list(dict.fromkeys(combo.plan.setup for combo in combos))
     worlds = f"{study.seed}..{study.seed + study.worlds - 1}"
     lines = [
-        f"study {study.name} ({path}): setup {study.setup}, modes {','.join(study.modes)}, worlds {worlds}, "
+        f"study {study.name} ({path}): setup {', '.join(setups)}, modes {','.join(study.modes)}, worlds {worlds}, "
         f"{len(combos)} combination(s), into {out.url}"
     ]
     lines += study_changes(study, out, overwrite)
-    ids = [_dataset_id(study, mode, seed) for seed in study.world_seeds for mode in study.modes]
-    missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
-    world = spec.build(study.seed)
-    gen_rate = _generation_rate(world, study.modes[0])
-    n_sensor = int(np.prod(world.sensor_shape))
-    n_regular = len(world.regular_sampling()[0])
-    gen_bytes = len(missing) * n * spec.bytes_per_transition
-    gen_s = len(missing) * n / gen_rate / max(1, min(gen_workers, len(missing) * -(-n // spec.default_shard_size)))
-    lines.append(
-        f"datasets: {len(ids)}, {len(ids) - len(missing)} in {lake.url}, {len(missing)} to generate "
-        f"({len(missing) * n} transitions, about {_size(gen_bytes)}, {duration(gen_s)} at {gen_rate:.4g} "
-        f"transitions/s per worker measured now)"
-    )
+    probes = {setup: SetupProbe.of(setup, study.seed, study.modes[0]) for setup in setups}
+    gen_s = gen_bytes = 0.0
+    for setup in setups:
+        spec, probe = get_setup(setup), probes[setup]
+        n = spec.default_transitions if study.transitions is None else study.transitions
+        ids = [_dataset_id(setup, mode, seed) for seed in study.world_seeds for mode in study.modes]
+        missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
+        parts = len(missing) * -(-n // spec.default_shard_size)
+        seconds = len(missing) * n / probe.gen_rate / max(1, min(gen_workers, parts))
+        gen_s += seconds
+        gen_bytes += len(missing) * n * spec.bytes_per_transition
+        lines.append(
+            f"datasets of {setup}: {len(ids)}, {len(ids) - len(missing)} in {lake.url}, {len(missing)} to generate "
+            f"({len(missing) * n} transitions, about {_size(len(missing) * n * spec.bytes_per_transition)}, "
+            f"{duration(seconds)} at {probe.gen_rate:.4g} transitions/s per worker measured now)"
+        )
     total_s, total_bytes = 0.0, 0
     counts = {"new": 0, "resume": 0, "finished": 0}
     for combo in combos:
-        template = combo.plan.template.for_setup(study.setup, n, spec.encoder_layers)
+        setup = combo.plan.setup
+        spec, probe = get_setup(setup), probes[setup]
+        template = combo.plan.template.for_setup(setup, combo.plan.n_transitions, spec.encoder_layers)
         states = [
-            _run_state(combo.out, template, _dataset_id(study, mode, seed), seed)
+            _run_state(combo.out, template, _dataset_id(setup, mode, seed), seed)
             for seed in study.world_seeds
             for mode in study.modes
         ]
@@ -159,13 +183,13 @@ def dry_run(
             counts[state] += 1
         run_steps = sum(template.steps - step for state, step in states if state != "finished")
         size = len(ensembles(list(range(len(states))), max_ensemble, workers)[0])
-        per_step = _ensemble_step_s(template, spec.n_motor, n_sensor, size) / size
+        per_step = _ensemble_step_s(template, spec.n_motor, probe.n_sensor, size) / size
         groups = -(-len(states) // size)
         seconds = run_steps * per_step / max(1, min(workers, groups))
         total_s += seconds
         evaluations = template.steps // template.eval_every + 2
-        params = parameter_count(template, spec.n_motor, n_sensor)
-        per_run = 2 * 12 * params + evaluations * 4 * (n_regular * (template.n_h + 2) + 16 * n_sensor)
+        params = parameter_count(template, spec.n_motor, probe.n_sensor)
+        per_run = 2 * 12 * params + evaluations * 4 * (probe.n_regular * (template.n_h + 2) + 16 * probe.n_sensor)
         total_bytes += per_run * sum(state == "new" for state, _ in states)
         label = folder_name(combo.values) or "(no grid)"
         lines.append(
@@ -181,8 +205,8 @@ def dry_run(
     return lines
 
 
-def _dataset_id(study: StudyFile, mode: str, seed: int) -> str:
-    return GenConfig(study.setup, mode, seed, 1, 1).dataset_id
+def _dataset_id(setup: str, mode: str, seed: int) -> str:
+    return GenConfig(setup, mode, seed, 1, 1).dataset_id
 
 
 def _run_state(out: Store, template: TrainConfig, dataset_id: str, seed: int) -> tuple[str, int]:

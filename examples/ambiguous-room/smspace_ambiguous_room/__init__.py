@@ -1,0 +1,48 @@
+"""The arm of smspace (docs/MODEL.md §2.3) in rooms whose views repeat: an ambiguity dial.
+
+Level 0 is smspace's own arm room (walls, 16 distinct objects). Levels 1-3 are an open floor, with
+no walls in view, whose texture is one motif (coloured discs on a coloured ground, drawn from the
+world seed) tiled with a period of 24 m (level 1: never repeats where the camera can be), 1.5 m
+(level 2) or 0.75 m (level 3). The camera's orientation is fixed in the world, so two camera
+positions one period apart (along x or y) see the same image: the shorter the period, the more
+positions of the arm's working disc (radius 1.5 m) share their view.
+"""
+
+from __future__ import annotations
+
+from smspace.datagen.setups.arm import ArmWorld
+from smspace.datagen.setups.arm.views import log_room_map, write_preview
+from smspace.datagen.setups.arm.vulkan import render_provenance, require_render_device
+from smspace.datagen.setups.arm.world import SHIFT_BOUND
+from smspace.datagen.setups.base import Setup
+from smspace_ambiguous_room.floor import PERIODS, PeriodicFloorWorld
+
+__all__ = ["LEVEL0", "LEVEL1", "LEVEL2", "LEVEL3", "LEVELS", "PERIODS", "PeriodicFloorWorld"]
+
+
+def _level(name: str, period: float | None, description: str) -> Setup:
+    def build(seed: int):
+        return ArmWorld(seed, 3) if period is None else PeriodicFloorWorld(seed, period)
+
+    return Setup(
+        name,
+        n_motor=3,
+        description=description,
+        build=build,
+        encoder_layers=(150, 100, 50),
+        shift_bound=SHIFT_BOUND,
+        default_transitions=60_000,
+        default_shard_size=8192,
+        bytes_per_transition=640,
+        preflight=require_render_device,
+        provenance=render_provenance,
+        preview=write_preview,
+        view_world=log_room_map,
+    )
+
+
+LEVEL0 = _level("ambig0", None, "ambiguity level 0: smspace's arm room (walls and 16 distinct objects)")
+LEVEL1 = _level("ambig1", PERIODS[1], "ambiguity level 1: an open floor whose motif never repeats in view")
+LEVEL2 = _level("ambig2", PERIODS[2], "ambiguity level 2: an open floor whose motif repeats every 1.5 m")
+LEVEL3 = _level("ambig3", PERIODS[3], "ambiguity level 3: an open floor whose motif repeats every 0.75 m")
+LEVELS = {0: LEVEL0, 1: LEVEL1, 2: LEVEL2, 3: LEVEL3}
