@@ -22,8 +22,9 @@ from smspace.train.loader import TransitionStream
 from smspace.train.model import prediction_loss
 
 
-def matmul_flops(n: int = 1024, repeats: int = 5) -> float:
-    a, b = torch.randn(n, n), torch.randn(n, n)
+def matmul_flops(n: int = 1024, repeats: int = 5, dtype: torch.dtype = torch.float32) -> float:
+    """The FLOP/s of one large matmul in `dtype` on this thread: the peak a step is measured against."""
+    a, b = torch.randn(n, n, dtype=dtype), torch.randn(n, n, dtype=dtype)
     best = float("inf")
     for _ in range(repeats):
         t = time.perf_counter()

@@ -96,5 +96,5 @@ class Progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
-        elif self.plain and self.printed != (self.n, tuple(self.postfix.items())):
-            self.line()  # the last state, whatever the interval
+        elif self.plain and self.printed is not None and self.printed != (self.n, tuple(self.postfix.items())):
+            self.line()  # the last state of a command long enough to have been reported (a quick one stays quiet)

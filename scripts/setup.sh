@@ -20,8 +20,8 @@ fi
 # torch is pinned to 2.13.0 (CPU wheel): an unpinned torch pulls a multi-GB CUDA build. [dev] brings
 # the s3 and cluster extras (s3fs, Ray) and moto's S3 server for the tests.
 .venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e ".[dev]"
-# An example plugin (a setup and a network registered through entry points): the tests use it.
-.venv/bin/python -m pip install -q --disable-pip-version-check --no-deps -e examples/plugin-demo
+# Example plugins (setups and a network registered through entry points): the tests use them.
+.venv/bin/python -m pip install -q --disable-pip-version-check --no-deps -e examples/plugin-demo -e examples/ambiguous-room
 # rerun's CLI would otherwise print a first-run analytics notice (and try to phone home).
 .venv/bin/rerun analytics disable >/dev/null 2>&1 || true
 echo "smspace is set up in .venv ($(.venv/bin/smgen --version))"

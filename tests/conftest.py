@@ -49,3 +49,17 @@ def grid_lake(tmp_path_factory) -> Path:
     )
     assert result.exit_code == 0, result.output
     return lake
+
+
+def same_but_provenance(a: dict[str, bytes], b: dict[str, bytes]) -> str | None:
+    """Two datasets' files ({name: bytes}) compared: every part byte for byte, and the manifests
+    but for the note on who wrote which parts (a part found stored was written by another command,
+    which the manifest says). Returns that note (None if neither has one)."""
+    import json
+
+    a, b = dict(a), dict(b)
+    manifests = [json.loads(files.pop(next(k for k in files if k.endswith("manifest.json")))) for files in (a, b)]
+    assert a == b, sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
+    notes = [m["software"].pop("note", None) for m in manifests]
+    assert manifests[0] == manifests[1]
+    return notes[0] or notes[1]

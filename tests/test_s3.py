@@ -164,7 +164,11 @@ def test_killed_generation_on_s3_is_invisible_then_completes_byte_identically(s3
     clean = tmp_path / "clean"
     assert cli(s3, "smgen", "generate", *args, "--lake", clean).returncode == 0
     remote = dataset_files(remote_files(s3, "lake/killed"), "grid-seed7-MEM")
-    assert remote == dataset_files(local_files(clean), "grid-seed7-MEM")
+    local = dataset_files(local_files(clean), "grid-seed7-MEM")
+    completed, whole = (json.loads(files.pop("grid-seed7-MEM/manifest.json")) for files in (remote, local))
+    assert remote == local  # every part, byte for byte
+    assert completed["software"].pop("note").endswith("parts were written by an earlier command")
+    assert completed == whole  # the same manifest, but for what it says of the parts the killed command wrote
     assert "grid-seed7-MEM/generation.json" not in remote
 
 

@@ -106,8 +106,11 @@ def test_learning_rate_schedule():
 
 
 @pytest.mark.numerical
-def test_killed_run_resumes_bit_identical(tmp_path):
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_killed_run_resumes_bit_identical(tmp_path, precision):
+    """In either precision: resuming is the same computation, so the same bits."""
     args = ["grid-seed0-MM", "--lake", SAMPLES, "--steps", 2000, "--eval-every", 100, "--seed", 4]
+    args += ["--precision", precision]
     clean, killed = tmp_path / "clean", tmp_path / "killed"
     assert smtrain("fit", *args, "--out", clean).exit_code == 0
     proc = subprocess.Popen(

@@ -75,6 +75,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     ctx = click.get_current_context()
     given = [flag_name(f) for f in flag_fields_of_config() if f.name in given_fields(ctx)]
     template = config_from_flags(flags)
+    _say_precision(flags)
     if nproc > 1 and STORE_ENV not in os.environ:  # this process only launches the ranks
         if "WORLD_SIZE" in os.environ:
             raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
@@ -103,6 +104,16 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     if ranks.primary:
         click.echo(f"run: {display_name(str(run.path))}")
         click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
+
+
+@contextlib.contextmanager
+def _say_precision(flags: dict) -> None:
+    """--precision auto is decided now, for the runs created now; say what and why."""
+    if flags.get("precision") == "auto":
+        from smspace.train.precision import resolve
+
+        precision, why = resolve("auto", flags.get("device") or "cpu")
+        click.echo(f"--precision auto: {precision} ({why})", err=True)
 
 
 @contextlib.contextmanager
@@ -213,6 +224,7 @@ def sweep(
     get_setup(setup_name)
     mode_list = parse_modes(modes)
     template = config_from_flags(flags)
+    _say_precision(flags)
     resolve_device(template.device)
     out = out or RUNS
     message = (

@@ -20,6 +20,8 @@ from smspace.lake.manifest import SEED_MAX  # a run's seed is its world's in a s
 from smspace.lake.store import Store, open_store
 from smspace.train.model import DEFAULT_MODEL, build_model
 from smspace.train.model import parameter_count as count_parameters
+from smspace.train.precision import PRECISIONS
+from smspace.train.precision import resolve as resolve_precision
 
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
@@ -67,6 +69,12 @@ class TrainConfig:
     device: str = flag("cpu", "cpu or cuda.")
     threads: int = flag(1, "torch CPU threads.", minimum=1, maximum=256)
     loader_workers: int = flag(0, "DataLoader worker processes per run.", minimum=0, maximum=64)
+    precision: str = flag(
+        "fp32",
+        "fp32, bf16 (the training step's matmuls in bfloat16; weights, Adam, loss and evaluation in fp32) "
+        "or auto (decided when the run is created: docs/MODEL.md §3).",
+    )
+    compile: bool = flag(False, "Compile the training step with torch.compile (a CPU needs a C++ compiler).")
     # fixed by design, recorded so that a run folder says everything its numbers depend on
     eval_transitions: int = 4096  # the fixed set the evaluation loss is computed on
     shuffle_window: int = 8
@@ -88,6 +96,10 @@ class TrainConfig:
                 raise SmspaceError(f"--{name.replace('_', '-')}: at most {MAX_LAYERS} layers of 1..{MAX_WIDTH}")
         if self.lr_decay_steps <= 0:
             self.lr_decay_steps = max(1, round(0.8 * self.steps))
+        if self.precision not in PRECISIONS:
+            raise SmspaceError(f"--precision {self.precision!r}: one of {', '.join(PRECISIONS)}")
+        if self.precision == "auto":  # decided once, here; the run records what was decided
+            self.precision = resolve_precision(self.precision, self.device)[0]
 
     @property
     def run_name(self) -> str:

@@ -22,6 +22,7 @@ from smspace.train.evaluation import N_PREDICTIONS, EvalData
 from smspace.train.fit import build
 from smspace.train.loop import open_member, recorded_outcome, resolve_device, resume_members, train
 from smspace.train.model import prediction_loss
+from smspace.train.precision import autocast, compiled
 from smspace.train.run_dir import RunDir
 
 
@@ -106,8 +107,23 @@ def _load_adam_state(stacked: Stacked, opt: torch.optim.Adam, r: int, saved: dic
 class EnsembleLearner:
     """R runs stacked with one fused Adam: the `Learner` of a sweep."""
 
-    def __init__(self, stacked: Stacked, optimizer: torch.optim.Adam, data: list[EvalData]):
+    def __init__(
+        self,
+        stacked: Stacked,
+        optimizer: torch.optim.Adam,
+        data: list[EvalData],
+        precision: str = "fp32",
+        compile: bool = False,
+    ):
         self.stacked, self.optimizer = stacked, optimizer
+        device = data[0].m_regular.device
+
+        def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
+            with autocast(precision, device):
+                pred = stacked.forward(m_t, s_t, m_t1)
+            return prediction_loss(pred.float(), s_t1)  # (R,): each run's own loss
+
+        self._loss = compiled(loss, compile)
         self.m_regular = torch.stack([d.m_regular for d in data])
         self.eval_inputs = [torch.stack([getattr(d, k) for d in data]) for k in ("m_t", "s_t", "m_t1", "s_t1")]
 
@@ -118,7 +134,7 @@ class EnsembleLearner:
     def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
         device = self.m_regular.device
         m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(device) for k in range(4))
-        per_run = prediction_loss(self.stacked.forward(m_t, s_t, m_t1), s_t1)  # (R,): each run's own loss
+        per_run = self._loss(m_t, s_t, m_t1, s_t1)
         self.optimizer.zero_grad(set_to_none=True)
         per_run.sum().backward()  # parameters are disjoint: each run gets exactly its own gradient
         self.optimizer.step()
@@ -156,6 +172,8 @@ SHARED = (
     "lr_decay_steps",
     "eval_every",
     "device",
+    "precision",
+    "compile",
 )
 
 
@@ -207,6 +225,7 @@ def _train_claimed(
         opt = torch.optim.Adam(
             stacked.parameters(), lr=members[0].cfg.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True
         )
-        learner = EnsembleLearner(stacked, opt, [m.data for m in members])
+        cfg = members[0].cfg
+        learner = EnsembleLearner(stacked, opt, [m.data for m in members], cfg.precision, cfg.compile)
         step = resume_members(learner, members, device) if resume else 0
         train(learner, members, step, progress, on_step=on_step)

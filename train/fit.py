@@ -7,7 +7,7 @@ The loop itself is `train.loop`; this file is the lone model behind it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -30,6 +30,7 @@ from smspace.train.loop import (
     train,
 )
 from smspace.train.model import build_model, prediction_loss
+from smspace.train.precision import autocast, compiled
 from smspace.train.run_dir import CHECKPOINT, RunDir
 from smspace.train.terms import resumed
 
@@ -163,9 +164,19 @@ def _upgrade(checkpoint: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> 
 class SingleLearner:
     """One model and its Adam: the `Learner` of a lone run (under DDP, of one rank)."""
 
-    def __init__(self, model: torch.nn.Module, optimizer: torch.optim.Adam, data: EvalData, ranks: Ranks = SINGLE):
+    def __init__(
+        self,
+        model: torch.nn.Module,
+        optimizer: torch.optim.Adam,
+        data: EvalData,
+        ranks: Ranks = SINGLE,
+        precision: str = "fp32",
+        compile: bool = False,
+    ):
         self.model, self.optimizer, self.data, self.ranks = model, optimizer, data, ranks
+        self.precision, self.compile = precision, compile
         self._trained: torch.nn.Module | None = None
+        self._loss: Callable | None = None
 
     def _training_model(self) -> torch.nn.Module:
         """The model the steps run through: wrapped in DDP (gradients averaged over the ranks) when
@@ -178,10 +189,23 @@ class SingleLearner:
         for group in self.optimizer.param_groups:
             group["lr"] = lr
 
+    def _step_loss(self) -> Callable:
+        """The forward pass and loss of a step, in the run's precision, compiled if asked."""
+        if self._loss is None:
+            model, device = self._training_model(), self.data.m_regular.device
+
+            def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
+                with autocast(self.precision, device):
+                    pred = model(m_t, s_t, m_t1)
+                return prediction_loss(pred.float(), s_t1)
+
+            self._loss = compiled(loss, self.compile)
+        return self._loss
+
     def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
         device = self.data.m_regular.device
         m_t, s_t, m_t1, s_t1 = (x.to(device, non_blocking=True) for x in batches[0])
-        loss = prediction_loss(self._training_model()(m_t, s_t, m_t1), s_t1)
+        loss = self._step_loss()(m_t, s_t, m_t1, s_t1)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -223,7 +247,7 @@ def _fit_claimed(cfg: TrainConfig, run: RunDir, resume: bool, ranks: Ranks, devi
         manifest = member.dataset.manifest
         cfg = member.cfg
         model, optimizer = build(cfg, manifest.n_motor, int(np.prod(manifest.sensor_shape)), device)
-        learner = SingleLearner(model, optimizer, member.data, ranks)
+        learner = SingleLearner(model, optimizer, member.data, ranks, cfg.precision, cfg.compile)
         step = resume_members(learner, [member], device, ranks) if resume else 0
         with peer_errors(ranks):
             train(learner, [member], step, ranks=ranks, synced=lambda: ranks_agree(model, ranks))

@@ -201,11 +201,16 @@ def train(
     desc = "training" if count == 1 else f"ensemble of {count}"
     bar = Progress(desc, cfg.steps, "step", initial=step, enabled=progress and ranks.primary)
     last_tick = time.monotonic()
+    compile_note: dict[str, str] = {}
     try:
         t0 = time.perf_counter()
         while step < cfg.steps:
             learner.set_lr(learning_rate(cfg, step))
+            started = time.perf_counter()
             losses = mean_over_ranks(learner.train_step([_next_batch(b) for b in batches]), ranks)
+            if cfg.compile and not compile_note:  # the first step of a session pays for compilation
+                compile_note = {"compiled in": f"{time.perf_counter() - started:.1f} s"}
+                bar.set_postfix(**compile_note)
             if check_each_step and not bool(torch.isfinite(losses).all()):
                 raise diverged(step, losses.numpy())
             step += 1
@@ -226,7 +231,7 @@ def train(
                 loss_sum.zero_()
                 loss_count = 0
                 if ranks.primary:
-                    bar.set_postfix(**_summary([m.rows[-1] for m in members]))
+                    bar.set_postfix(**compile_note, **_summary([m.rows[-1] for m in members]))
         if on_step is not None:
             on_step(step)
     finally:

@@ -14,6 +14,7 @@ import click
 
 from smspace.common.completion import complete_devices
 from smspace.train.config import MAX_LAYERS, MAX_WIDTH
+from smspace.train.precision import PRECISIONS
 
 if TYPE_CHECKING:
     from smspace.train.config import TrainConfig
@@ -88,6 +89,13 @@ def config_options(exclude: tuple[str, ...] = ()) -> Callable:
                 option = click.option(flag_name(f), f.name, callback=int_list, default=None, help=help_text + shown)
             elif isinstance(default, dict):
                 option = click.option(flag_name(f), f.name, callback=json_object, default=None, help=help_text)
+            elif isinstance(default, bool):
+                option = click.option(flag_name(f), f.name, is_flag=True, default=default, help=help_text)
+            elif f.name == "precision":
+                option = click.option(
+                    flag_name(f), f.name, type=click.Choice(PRECISIONS), default=default, show_default=True,
+                    help=help_text,
+                )  # fmt: skip
             elif f.name == "model":
                 option = click.option(
                     flag_name(f), f.name, type=click.Choice(model_choices()), default=default, show_default=True,

@@ -28,7 +28,7 @@ from smspace.common.errors import SmspaceError
 from smspace.train.config import TrainConfig
 
 PER_RUN = ("dataset", "dataset_id", "dataset_config_hash", "dataset_shards_sha256", "mode", "seed", "run_id")
-EXECUTION = ("device", "threads", "loader_workers", "world_size")  # how a run ran, not what it computed
+EXECUTION = ("device", "threads", "loader_workers", "world_size", "compile")  # how a run ran, not what it computed
 HISTORY = ("extensions", "sessions")  # what happened to a run, not what it computes
 STUDY = "study.json"
 

@@ -1,0 +1,63 @@
+"""--precision and --compile (train/precision.py): recorded, kept on resume, part of a study's
+terms; a compiler that does not work is one line, then eager training."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from smspace.train.precision import resolve
+from smspace.train.run_dir import RunDir
+
+from .conftest import SAMPLES, run_cmd
+from .test_train import smtrain
+
+
+def test_auto_is_decided_when_the_run_is_created_and_kept_on_resume(tmp_path):
+    out = tmp_path / "run"
+    args = ["grid-seed0-MM", "--lake", SAMPLES, "--out", out, "--steps", 40, "--eval-every", 20]
+    result = run_cmd("smtrain", "fit", *args, "--precision", "auto")
+    assert result.returncode == 0, result.stderr
+    decided, why = resolve("auto", "cpu")
+    assert f"--precision auto: {decided} ({why})" in result.stderr
+    assert RunDir.open(out).config.precision == decided  # what was decided, never "auto"
+    refused = smtrain("fit", "--resume", out, "--steps", 60, "--precision", "fp32" if decided == "bf16" else "bf16")
+    assert refused.exit_code == 2 and "--precision" in refused.output
+    assert smtrain("fit", "--resume", out, "--steps", 60).exit_code == 0
+    assert RunDir.open(out).config.precision == decided
+
+
+def test_bf16_trains_in_bf16_and_is_a_term_of_its_study(tmp_path):
+    lake, out = tmp_path / "lake", tmp_path / "runs"
+    sweep = ["sweep", "--setup", "grid", "--modes", "MM", "--worlds", 2, "--transitions", 2500, "--steps", 40,
+             "--eval-every", 20, "--lake", lake, "--out", out, "--workers", 1]  # fmt: skip
+    assert smtrain(*sweep, "--precision", "bf16").exit_code == 0
+    runs = [RunDir.open(p.parent) for p in sorted(out.glob("*/config.json"))]
+    assert len(runs) == 2 and all(r.config.precision == "bf16" for r in runs)
+    alone = smtrain("fit", "grid-seed0-MM", "--lake", lake, "--out", tmp_path / "fp32", "--steps", 40,
+                    "--eval-every", 20)  # fmt: skip
+    assert alone.exit_code == 0
+    in_bf16 = runs[0].metrics()[-1]["eval_loss"]
+    in_fp32 = RunDir.open(tmp_path / "fp32").metrics()[-1]["eval_loss"]
+    assert in_bf16 != in_fp32 and in_bf16 == pytest.approx(in_fp32, rel=0.2)  # rounded, not another model
+    refused = smtrain(*sweep, "--precision", "fp32")
+    assert refused.exit_code == 2 and 'precision "bf16" (asked "fp32")' in refused.output
+
+
+def test_compile_reports_its_time_and_a_broken_compiler_falls_back_in_one_line(tmp_path):
+    args = ["grid-seed0-MM", "--lake", SAMPLES, "--steps", 30, "--eval-every", 10, "--compile"]
+    env = {"SMSPACE_PROGRESS_EVERY": "0.01", "TORCHINDUCTOR_CACHE_DIR": str(tmp_path / "cache")}
+    no_compiler = env | {"CXX": "/bin/false"}
+    broken = run_cmd("smtrain", "fit", *args, "--out", tmp_path / "broken", env=no_compiler, timeout=600)
+    assert broken.returncode == 0, broken.stderr
+    fallback = [ln for ln in broken.stderr.splitlines() if ln.startswith("--compile:")]
+    assert len(fallback) == 1 and "does not work here" in fallback[0] and "training eagerly" in fallback[0]
+    assert json.loads((tmp_path / "broken" / "status.json").read_text())["state"] == "finished"
+
+    works = run_cmd("smtrain", "fit", *args, "--out", tmp_path / "compiled", env=env, timeout=600)
+    assert works.returncode == 0, works.stderr
+    assert "--compile:" not in works.stderr and "compiled in " in works.stderr.splitlines()[-3]
+    compiled, eager = RunDir.open(tmp_path / "compiled").metrics(), RunDir.open(tmp_path / "broken").metrics()
+    for a, b in zip(compiled, eager, strict=True):  # fused kernels sum in another order: the same run, to rounding
+        assert a["eval_loss"] == pytest.approx(b["eval_loss"], rel=1e-3), (a, b)

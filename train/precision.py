@@ -1,0 +1,86 @@
+"""How the training step computes: its precision (fp32, or bf16 autocast of the network's matmuls)
+and whether it goes through torch.compile. Evaluation (h, the metrics, the evaluation loss) is
+always fp32 and eager; so are the weights, Adam's state and the loss.
+
+`auto` is decided when a run is created and recorded as what it decided (config.json), so a run
+resumed on another machine keeps its precision: bf16 only where the hardware multiplies bf16
+natively (a CPU with AMX or AVX-512 BF16, a GPU that supports it), and only for what bf16 was
+measured not to change (docs/REPRODUCTION.md, "bf16"): see AUTO_PICKS_BF16.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from collections.abc import Callable, Iterator
+
+import torch
+
+from smspace.common import provenance
+from smspace.common.errors import one_line
+
+PRECISIONS = ("fp32", "bf16", "auto")
+NATIVE_BF16_FLAGS = ("amx_bf16", "avx512_bf16")
+# What the bf16 grid study decided (docs/REPRODUCTION.md, "bf16"): True lets auto pick bf16 where it is
+# native; False keeps fp32 everywhere until a study shows bf16 keeps every claim.
+AUTO_PICKS_BF16 = False
+
+
+def native_bf16(device: str) -> str | None:
+    """Why this device multiplies bf16 natively ("this CPU has amx_bf16"), or None."""
+    if device.startswith("cuda"):
+        try:
+            return "this GPU supports bf16" if torch.cuda.is_bf16_supported() else None
+        except (RuntimeError, AssertionError):
+            return None
+    flags = [f for f in NATIVE_BF16_FLAGS if f in provenance.cpu()["cpu_vector_extensions"]]
+    return f"this CPU has {' and '.join(flags)}" if flags else None
+
+
+def resolve(precision: str, device: str) -> tuple[str, str]:
+    """(fp32 or bf16, why): what `precision` means on `device`."""
+    if precision != "auto":
+        return precision, "asked for"
+    native = native_bf16(device)
+    if native is None:
+        return "fp32", "auto: no native bf16 multiply here"
+    if not AUTO_PICKS_BF16:
+        return "fp32", f"auto: {native}, but bf16 changed the grid study's results (docs/REPRODUCTION.md, bf16)"
+    return "bf16", f"auto: {native}"
+
+
+@contextlib.contextmanager
+def autocast(precision: str, device: torch.device) -> Iterator[None]:
+    """The forward pass of a training step in `precision` (matmuls only: autocast's bf16 list)."""
+    if precision == "bf16":
+        with torch.autocast(device.type, dtype=torch.bfloat16):
+            yield
+    else:
+        yield
+
+
+def compiled(fn: Callable, enabled: bool, say: Callable[[str], None] | None = None) -> Callable:
+    """`fn` through torch.compile when asked and when it works here (inductor needs a C++
+    compiler on a CPU): a tiny function is compiled first, and a failure is one line, then eager."""
+    if not enabled:
+        return fn
+    say = say or (lambda line: print(line, file=sys.stderr, flush=True))
+    problem = _compile_problem()
+    if problem is not None:
+        say(f"--compile: torch.compile does not work here ({problem}); training eagerly")
+        return fn
+    return torch.compile(fn)
+
+
+_checked: dict[str, str | None] = {}
+
+
+def _compile_problem() -> str | None:
+    if "result" not in _checked:
+        try:
+            probe = torch.compile(lambda x: torch.relu(x) * 2 + 1)
+            probe(torch.ones(4))
+            _checked["result"] = None
+        except Exception as e:  # inductor raises many kinds (no compiler, a bad toolchain)
+            _checked["result"] = one_line(e, limit=200)
+    return _checked["result"]
