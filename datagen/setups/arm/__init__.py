@@ -16,7 +16,8 @@ def _builder(n_motor: int):
     return build
 
 
-_COMMON = dict(
+# What every arm setup shares (a plugin's arm in another room reuses it: examples/ambiguous-room)
+ARM_DEFAULTS = dict(
     shift_bound=SHIFT_BOUND,
     default_shard_size=8192,
     bytes_per_transition=640,
@@ -34,7 +35,7 @@ SETUPS = (
         build=_builder(3),
         encoder_layers=(150, 100, 50),
         default_transitions=150_000,
-        **_COMMON,
+        **ARM_DEFAULTS,
     ),
     Setup(
         "arm6",
@@ -43,8 +44,8 @@ SETUPS = (
         build=_builder(6),
         encoder_layers=(500, 400, 300, 200),
         default_transitions=300_000,
-        **_COMMON,
+        **ARM_DEFAULTS,
     ),
 )
 
-__all__ = ["SETUPS", "ArmWorld", "planar_fk"]
+__all__ = ["ARM_DEFAULTS", "SETUPS", "ArmWorld", "planar_fk"]

@@ -10,10 +10,7 @@ positions of the arm's working disc (radius 1.5 m) share their view.
 
 from __future__ import annotations
 
-from smspace.datagen.setups.arm import ArmWorld
-from smspace.datagen.setups.arm.views import log_room_map, write_preview
-from smspace.datagen.setups.arm.vulkan import render_provenance, require_render_device
-from smspace.datagen.setups.arm.world import SHIFT_BOUND
+from smspace.datagen.setups.arm import ARM_DEFAULTS, ArmWorld
 from smspace.datagen.setups.base import Setup
 from smspace_ambiguous_room.floor import PERIODS, PeriodicFloorWorld
 
@@ -30,14 +27,8 @@ def _level(name: str, period: float | None, description: str) -> Setup:
         description=description,
         build=build,
         encoder_layers=(150, 100, 50),
-        shift_bound=SHIFT_BOUND,
         default_transitions=60_000,
-        default_shard_size=8192,
-        bytes_per_transition=640,
-        preflight=require_render_device,
-        provenance=render_provenance,
-        preview=write_preview,
-        view_world=log_room_map,
+        **ARM_DEFAULTS,  # the arm's shifts, shards, Vulkan check, provenance and previews
     )
 
 
