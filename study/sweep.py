@@ -238,9 +238,25 @@ def train_chunk(paths: list[str], resume: bool, threads: int, channel: Any = Non
     """One ensemble, wherever it runs (this process, a spawned one, a Ray worker); returns its size.
     Its step goes on `channel` about every second (study/monitor.py)."""
     runs = [RunDir.open(p) for p in paths]
-    on_step = None if channel is None else (lambda step: channel.put((key, step)))
-    train_ensemble(runs, resume=resume, threads=threads, progress=False, on_step=on_step)
+    train_ensemble(runs, resume=resume, threads=threads, progress=False, on_step=_reporter(channel, key))
     return len(runs)
+
+
+def _reporter(channel: Any, key: str) -> Callable[[int], None] | None:
+    """Puts the step on the channel; progress is a courtesy: if the channel is gone (its manager
+    process killed), training goes on unreported."""
+    if channel is None:
+        return None
+    alive = [True]
+
+    def report(step: int) -> None:
+        if alive[0]:
+            try:
+                channel.put((key, step))
+            except Exception:  # a dead manager raises several kinds (EOFError, ConnectionError, OSError…)
+                alive[0] = False
+
+    return report
 
 
 def _mark_stopped(runs: list[RunDir], line: str) -> None:

@@ -385,7 +385,11 @@ def test_a_killed_sweep_worker_is_one_line_and_the_same_command_resumes(tmp_path
     while len(list(out.glob("*/checkpoint.pt"))) < 6:
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
         time.sleep(0.1)
-    workers = [p for p in psutil.Process(proc.pid).children() if "spawn_main" in " ".join(p.cmdline())]
+
+    def trains(p: psutil.Process) -> bool:  # a pool worker holds its runs' locks (the queue's manager holds none)
+        return "spawn_main" in " ".join(p.cmdline()) and any(str(out) in f.path for f in p.open_files())
+
+    workers = [p for p in psutil.Process(proc.pid).children() if trains(p)]
     os.kill(workers[0].pid, signal.SIGKILL)
     _, stderr = proc.communicate(timeout=60)
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
@@ -398,4 +402,35 @@ def test_a_killed_sweep_worker_is_one_line_and_the_same_command_resumes(tmp_path
     assert states <= {"failed", "finished"} and "failed" in states
     again = subprocess.run([str(BIN / "smtrain"), *map(str, args)], capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
+    assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+
+
+def test_a_killed_progress_queue_does_not_stop_a_sweep(tmp_path):
+    """The queue the workers report progress on lives in a manager process: killing it ends the
+    progress lines, never the training."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    from tests.conftest import BIN
+
+    out, lake = tmp_path / "runs", tmp_path / "lake"
+    args = ["sweep", "--setup", "grid", "--worlds", 2, "--transitions", 3000, "--steps", 600, "--eval-every", 50]
+    args += ["--lake", lake, "--out", out, "--workers", 2, "--gen-workers", 1]
+    proc = subprocess.Popen(
+        [str(BIN / "smtrain"), *map(str, args)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    deadline = time.monotonic() + 120
+    while len(list(out.glob("*/checkpoint.pt"))) < 6:
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.1)
+    children = [p for p in psutil.Process(proc.pid).children() if "spawn_main" in " ".join(p.cmdline())]
+    managers = [p for p in children if not any(str(out) in f.path for f in p.open_files())]
+    assert len(managers) == 1 and len(children) == 3
+    os.kill(managers[0].pid, signal.SIGKILL)
+    _, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
     assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}

@@ -83,21 +83,16 @@ def test_bad_shapes_are_refused():
 
 
 def test_room_ambiguity_tells_distinctive_views_from_mirrored_ones():
-    """scripts/arm_ambiguity.py backs a claim in docs/REPRODUCTION.md: its measures must separate
-    a room whose views all differ from one whose views repeat across a mirror."""
-    import importlib.util
-    from pathlib import Path
+    """smspace.metrics.ambiguity (scripts/arm_ambiguity.py, the ambiguity study) backs claims in
+    docs/REPRODUCTION.md: its measures must separate a room whose views all differ from one whose
+    views repeat across a mirror."""
+    from smspace.metrics.ambiguity import view_ambiguity
 
-    spec = importlib.util.spec_from_file_location(
-        "arm_ambiguity", Path(__file__).parents[1] / "scripts" / "arm_ambiguity.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
     p = np.random.default_rng(0).uniform(-1.5, 1.5, size=(400, 2))
     waves = np.linspace(0.3, 1.0, 8)  # |w x| < pi/2: each feature is monotonic in x or in y
     distinct = np.concatenate([np.sin(waves * p[:, :1]), np.sin(waves * p[:, 1:])], axis=1)
     mirrored = np.concatenate([np.cos(waves * p[:, :1]), np.sin(waves * p[:, 1:])], axis=1)  # x and -x alike
-    clear, ambiguous = module.room_ambiguity(p, distinct), module.room_ambiguity(p, mirrored)
+    clear, ambiguous = view_ambiguity(p, distinct), view_ambiguity(p, mirrored)
     assert clear["far_lookalikes"] < 0.05 < ambiguous["far_lookalikes"]
     assert clear["lookalike_distance"] < 0.3 < ambiguous["lookalike_distance"]
     assert clear["image_geometry_d_metric"] < 0.05 < ambiguous["image_geometry_d_metric"]
