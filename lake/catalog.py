@@ -148,7 +148,8 @@ def read_catalog(lake: Path | str | Store) -> pa.Table:
         return CATALOG_SCHEMA.empty_table()
     versions = manifest_versions(lake)
     try:
-        table = pq.read_table(pa.BufferReader(lake.read_bytes(CATALOG)))  # a BytesIO aborts at exit (pyarrow)
+        # no pyarrow thread pool: a BytesIO, or its threads, could abort the process at exit
+        table = pq.read_table(pa.BufferReader(lake.read_bytes(CATALOG)), use_threads=False)
         sources = json.loads((table.schema.metadata or {}).get(SOURCES_KEY, b"null"))
         table = table.replace_schema_metadata(None)
         if _cache_holds(table, sources, versions):
