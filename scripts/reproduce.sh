@@ -13,6 +13,9 @@
 #   arm6        the six-motor arm, 3 worlds × 3 modes × 30000 steps, 75000 transitions per dataset
 #   reports     every figure and table under docs/reproduction/
 #   arm-ambiguity  how alike the views of each arm room are, beside the arm runs' metrics (1 min)
+#   ambiguity   beyond the paper: the arm in rooms whose views repeat (examples/ambiguous-room, a
+#               plugin), 4 levels x 4 worlds x MM, MME x 40000 steps, then its analysis (~80 min)
+#   precision   the grid in fp32 beside bf16, 5 worlds x 3 modes x 20000 steps, then the comparison
 #   new         grid-nh25, grid6, arm-more, arm6, then reports (both cores for each sweep)
 #   rest        grid6, arm-more, arm6, then reports (what was left of `new` after a restart)
 #   full        every study at the paper's size (50 worlds × 100000 steps) on a Ray cluster, with
@@ -20,7 +23,7 @@
 #               RAY_ADDRESS=ray://head:10001 WORKERS=256 bash scripts/reproduce.sh full s3://b/lake s3://b/runs
 set -euo pipefail
 cd "$(dirname "$0")/.."
-STAGE=${1:?give a stage: grid, arm, grid-nh25, grid6, arm-more, arm6, reports, arm-ambiguity, new, rest, full}
+STAGE=${1:?give a stage: grid, arm, grid-nh25, grid6, arm-more, arm6, reports, arm-ambiguity, ambiguity, precision, new, rest, full}
 LAKE=${2:-data/lake}
 RUNS=${3:-runs/repro}
 BIN=.venv/bin
@@ -45,6 +48,16 @@ arm_ambiguity() {
   "$BIN/python" scripts/arm_ambiguity.py --seeds 0-5 --lake data/ambiguity-lake \
     --runs docs/reproduction/arm/runs.csv --runs docs/reproduction/arm-more/runs.csv > docs/reproduction/arm-ambiguity.json
 }
+ambiguity() {
+  "$BIN/smtrain" sweep examples/ambiguous-room/study.toml --lake data/ambiguity --out "$RUNS/ambiguity" --workers "$CORES"
+  "$BIN/python" examples/ambiguous-room/analyse.py --runs "$RUNS/ambiguity" --lake data/ambiguity --out docs/reproduction/ambiguity
+}
+precision() {
+  study grid-precision
+  for p in fp32 bf16; do "$BIN/smtrain" report "$RUNS/grid-precision/precision=$p" --out "docs/reproduction/grid-precision/$p"; done
+  "$BIN/python" scripts/compare_studies.py docs/reproduction/grid-precision/fp32/runs.csv \
+    docs/reproduction/grid-precision/bf16/runs.csv > docs/reproduction/grid-precision/comparison.json
+}
 reports() {
   for study in grid arm grid-nh25 grid6 arm-more arm6; do
     if compgen -G "$RUNS/$study/*/metrics.parquet" >/dev/null; then
@@ -63,6 +76,8 @@ case "$STAGE" in
   reports) reports ;;
   full) full ;;
   arm-ambiguity) arm_ambiguity ;;
+  ambiguity) ambiguity ;;
+  precision) precision ;;
   new) grid_nh25; grid6; arm_more; arm6; reports ;;
   rest) grid6; arm_more; arm6; reports ;;
   *) echo "unknown stage $STAGE" >&2; exit 2 ;;

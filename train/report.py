@@ -160,8 +160,8 @@ def curves_figure(study: Study, path: Path) -> None:
             for v in values:
                 ax.plot(steps, v, color=colour, alpha=0.15, linewidth=0.7)
             mean, std = values.mean(0), values.std(0)
-            label = f"{mode} (mean of {len(runs)} run(s) ± std)"
-            (line,) = ax.plot(steps, mean, color=colour, linewidth=2, label=label)
+            legend = f"{mode} (mean of {len(runs)} run(s) ± std)"
+            (line,) = ax.plot(steps, mean, color=colour, linewidth=2, label=legend)
             handles.append(line)
             # on the log panels a band below zero means nothing: floor it at the lowest run
             lower = np.maximum(mean - std, values.min(0)) if key != "d_metric" else mean - std

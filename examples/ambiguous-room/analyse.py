@@ -59,7 +59,7 @@ def figure(rows: list[dict], path: Path) -> None:
         ax.set_ylabel(label)
         ax.set_yscale("log")
         ax.grid(alpha=0.3, which="both")
-        ax.set_title(f"{label} of each run at its last step, against its world's ambiguity")
+        ax.set_title(f"{label.split(' ')[0]} of each run at its last step")
     from matplotlib.lines import Line2D
 
     handles = [Line2D([], [], color=c, marker="o", linestyle="", label=m) for m, c in MODE_COLOURS.items()]
