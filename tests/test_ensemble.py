@@ -369,27 +369,13 @@ def test_a_killed_sweep_worker_is_one_line_and_the_same_command_resumes(tmp_path
     import os
     import signal
     import subprocess
-    import time
 
     import psutil
 
     from tests.conftest import BIN
 
-    out, lake = tmp_path / "runs", tmp_path / "lake"
-    args = ["sweep", "--setup", "grid", "--worlds", 2, "--transitions", 3000, "--steps", 400, "--eval-every", 50]
-    args += ["--lake", lake, "--out", out, "--workers", 2, "--gen-workers", 1]
-    proc = subprocess.Popen(
-        [str(BIN / "smtrain"), *map(str, args)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
-    )
-    deadline = time.monotonic() + 120
-    while len(list(out.glob("*/checkpoint.pt"))) < 6:
-        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-        time.sleep(0.1)
-
-    def trains(p: psutil.Process) -> bool:  # a pool worker holds its runs' locks (the queue's manager holds none)
-        return "spawn_main" in " ".join(p.cmdline()) and any(str(out) in f.path for f in p.open_files())
-
-    workers = [p for p in psutil.Process(proc.pid).children() if trains(p)]
+    proc, out, args = _sweep_with_checkpoints(tmp_path, steps=400)
+    workers = [p for p in psutil.Process(proc.pid).children() if _trains(p, out)]
     os.kill(workers[0].pid, signal.SIGKILL)
     _, stderr = proc.communicate(timeout=60)
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
@@ -410,15 +396,28 @@ def test_a_killed_progress_queue_does_not_stop_a_sweep(tmp_path):
     progress lines, never the training."""
     import os
     import signal
-    import subprocess
-    import time
 
     import psutil
+
+    proc, out, _ = _sweep_with_checkpoints(tmp_path, steps=600)
+    children = [p for p in psutil.Process(proc.pid).children() if "spawn_main" in " ".join(p.cmdline())]
+    managers = [p for p in children if not _trains(p, out)]
+    assert len(managers) == 1 and len(children) == 3
+    os.kill(managers[0].pid, signal.SIGKILL)
+    _, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+
+
+def _sweep_with_checkpoints(tmp_path, steps: int):
+    """A two-worker grid sweep started as a process, once each of its 6 runs has a checkpoint."""
+    import subprocess
+    import time
 
     from tests.conftest import BIN
 
     out, lake = tmp_path / "runs", tmp_path / "lake"
-    args = ["sweep", "--setup", "grid", "--worlds", 2, "--transitions", 3000, "--steps", 600, "--eval-every", 50]
+    args = ["sweep", "--setup", "grid", "--worlds", 2, "--transitions", 3000, "--steps", steps, "--eval-every", 50]
     args += ["--lake", lake, "--out", out, "--workers", 2, "--gen-workers", 1]
     proc = subprocess.Popen(
         [str(BIN / "smtrain"), *map(str, args)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
@@ -427,10 +426,9 @@ def test_a_killed_progress_queue_does_not_stop_a_sweep(tmp_path):
     while len(list(out.glob("*/checkpoint.pt"))) < 6:
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
         time.sleep(0.1)
-    children = [p for p in psutil.Process(proc.pid).children() if "spawn_main" in " ".join(p.cmdline())]
-    managers = [p for p in children if not any(str(out) in f.path for f in p.open_files())]
-    assert len(managers) == 1 and len(children) == 3
-    os.kill(managers[0].pid, signal.SIGKILL)
-    _, stderr = proc.communicate(timeout=300)
-    assert proc.returncode == 0, stderr
-    assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+    return proc, out, args
+
+
+def _trains(process, out) -> bool:
+    """A pool worker holds its runs' locks; the progress queue's manager process holds none."""
+    return "spawn_main" in " ".join(process.cmdline()) and any(str(out) in f.path for f in process.open_files())
