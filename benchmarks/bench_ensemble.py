@@ -28,7 +28,7 @@ from smspace.train.config import TrainConfig
 from smspace.train.ensemble import Stacked
 from smspace.train.fit import build
 from smspace.train.model import prediction_loss
-from smspace.train.precision import autocast, compiled
+from smspace.train.precision import compiled, step_loss
 
 
 def seconds_per_step(step, repeats: int, n: int) -> float:
@@ -48,14 +48,7 @@ def cell(runs: int, n_sensor: int, encoder: list[int], precision: str, compile: 
     stacked = Stacked([build(cfg, 3, n_sensor, torch.device("cpu"))[0] for _ in range(runs)])
     opt = torch.optim.Adam(stacked.parameters(), lr=1e-3, fused=True)
     xs = [torch.rand(runs, 100, k) * 2 - 1 for k in (3, n_sensor, 3, n_sensor)]
-    cpu_device = torch.device("cpu")
-
-    def loss(m_t, s_t, m_t1, s_t1):
-        with autocast(precision, cpu_device):
-            pred = stacked.forward(m_t, s_t, m_t1)
-        return prediction_loss(pred.float(), s_t1)
-
-    fn = compiled(loss, compile)
+    fn = compiled(step_loss(stacked.forward, precision, torch.device("cpu")), compile)
 
     def step() -> None:
         total = fn(*xs).sum()

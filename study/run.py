@@ -229,11 +229,12 @@ def _generation_rate(world, mode: str, n: int = 512) -> float:
 
 
 def _ensemble_step_s(template: TrainConfig, n_motor: int, n_sensor: int, runs: int, steps: int = 10) -> float:
-    """Seconds of one training step of an ensemble of `runs` of this network, on random batches,
-    with the threads a run is given."""
+    """Seconds of one training step of an ensemble of `runs` of this network in its precision
+    (eager: a compiled step would cost its compilation here), on random batches, with the threads
+    a run is given."""
     from smspace.train.ensemble import Stacked
     from smspace.train.fit import build
-    from smspace.train.model import prediction_loss
+    from smspace.train.precision import step_loss
 
     before = torch.get_num_threads()
     torch.set_num_threads(template.threads)
@@ -241,13 +242,13 @@ def _ensemble_step_s(template: TrainConfig, n_motor: int, n_sensor: int, runs: i
         cpu = torch.device("cpu")
         stacked = Stacked([build(replace(template, seed=i), n_motor, n_sensor, cpu)[0] for i in range(runs)])
         opt = torch.optim.Adam(stacked.parameters(), lr=1e-3, fused=True)
-        b = template.batch_size
-        xs = [torch.rand(runs, b, k) * 2 - 1 for k in (n_motor, n_sensor, n_motor, n_sensor)]
+        loss = step_loss(stacked.forward, template.precision, cpu)
+        xs = [torch.rand(runs, template.batch_size, k) * 2 - 1 for k in (n_motor, n_sensor, n_motor, n_sensor)]
 
         def step() -> None:
-            loss = prediction_loss(stacked.forward(xs[0], xs[1], xs[2]), xs[3]).sum()
+            total = loss(*xs).sum()
             opt.zero_grad(set_to_none=True)
-            loss.backward()
+            total.backward()
             opt.step()
 
         step()

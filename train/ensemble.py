@@ -22,7 +22,7 @@ from smspace.train.evaluation import N_PREDICTIONS, EvalData
 from smspace.train.fit import build
 from smspace.train.loop import open_member, recorded_outcome, resolve_device, resume_members, train
 from smspace.train.model import prediction_loss
-from smspace.train.precision import autocast, compiled
+from smspace.train.precision import compiled, step_loss
 from smspace.train.run_dir import RunDir
 
 
@@ -116,14 +116,7 @@ class EnsembleLearner:
         compile: bool = False,
     ):
         self.stacked, self.optimizer = stacked, optimizer
-        device = data[0].m_regular.device
-
-        def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
-            with autocast(precision, device):
-                pred = stacked.forward(m_t, s_t, m_t1)
-            return prediction_loss(pred.float(), s_t1)  # (R,): each run's own loss
-
-        self._loss = compiled(loss, compile)
+        self._loss = compiled(step_loss(stacked.forward, precision, data[0].m_regular.device), compile)
         self.m_regular = torch.stack([d.m_regular for d in data])
         self.eval_inputs = [torch.stack([getattr(d, k) for d in data]) for k in ("m_t", "s_t", "m_t1", "s_t1")]
 

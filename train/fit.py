@@ -30,7 +30,7 @@ from smspace.train.loop import (
     train,
 )
 from smspace.train.model import build_model, prediction_loss
-from smspace.train.precision import autocast, compiled
+from smspace.train.precision import compiled, step_loss
 from smspace.train.run_dir import CHECKPOINT, RunDir
 from smspace.train.terms import resumed
 
@@ -192,13 +192,7 @@ class SingleLearner:
     def _step_loss(self) -> Callable:
         """The forward pass and loss of a step, in the run's precision, compiled if asked."""
         if self._loss is None:
-            model, device = self._training_model(), self.data.m_regular.device
-
-            def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
-                with autocast(self.precision, device):
-                    pred = model(m_t, s_t, m_t1)
-                return prediction_loss(pred.float(), s_t1)
-
+            loss = step_loss(self._training_model(), self.precision, self.data.m_regular.device)
             self._loss = compiled(loss, self.compile)
         return self._loss
 

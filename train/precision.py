@@ -86,3 +86,19 @@ def _compile_problem() -> str | None:
         except Exception as e:  # inductor raises many kinds (no compiler, a bad toolchain)
             _checked["result"] = one_line(e, limit=200)
     return _checked["result"]
+
+
+Loss = Callable[..., torch.Tensor]
+
+
+def step_loss(forward: Callable[..., torch.Tensor], precision: str, device: torch.device) -> Loss:
+    """The forward pass and loss of a training step in `precision` (the loss itself in fp32): for a
+    lone model and a stacked ensemble alike (whose `forward` gives each run's own loss, (R,))."""
+    from smspace.train.model import prediction_loss
+
+    def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
+        with autocast(precision, device):
+            pred = forward(m_t, s_t, m_t1)
+        return prediction_loss(pred.float(), s_t1)
+
+    return loss
