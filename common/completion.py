@@ -12,7 +12,7 @@ import os
 
 from click.shell_completion import CompletionItem
 
-MODES = ("MEM", "MM", "MME")
+from smspace.lake.transitions import MODES
 
 
 def complete_modes(ctx, param, incomplete: str) -> list[CompletionItem]:
