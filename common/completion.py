@@ -1,5 +1,7 @@
-"""Shell completion values that click cannot know by itself: modes (and lists of them), devices and
-the dataset ids of the lake named on the command line. Click's own machinery does the rest
+"""Shell completion values that click cannot know by itself: one of a list of choices (and
+comma-separated lists of them, as modes are given), devices and the dataset ids of the lake named
+on the command line. The choices come from the caller, so this module imports nothing of the
+project. Click's own machinery does the rest
 (README, "Shell completion": `eval "$(_SMGEN_COMPLETE=bash_source smgen)"`).
 
 Everything here is quick and never fails: a completion that raises or hangs breaks the shell.
@@ -9,19 +11,24 @@ from __future__ import annotations
 
 import glob
 import os
+from collections.abc import Callable, Sequence
 
 from click.shell_completion import CompletionItem
 
-from smspace.lake.transitions import MODES
+Completer = Callable[..., list[CompletionItem]]
 
 
-def complete_modes(ctx, param, incomplete: str) -> list[CompletionItem]:
-    """One mode, `all`, or the next mode of a comma-separated list (MEM,MM,…)."""
-    done, _, last = incomplete.rpartition(",")
-    given = set(done.split(",")) if done else set()
-    options = [m for m in MODES if m not in given] + ([] if done else ["all"])
-    prefix = f"{done}," if done else ""
-    return [CompletionItem(prefix + m) for m in options if m.startswith(last)]
+def comma_list_completer(choices: Sequence[str]) -> Completer:
+    """Completion of one choice, `all`, or the next choice of a comma-separated list (MEM,MM,…)."""
+
+    def complete(ctx, param, incomplete: str) -> list[CompletionItem]:
+        done, _, last = incomplete.rpartition(",")
+        given = set(done.split(",")) if done else set()
+        options = [c for c in choices if c not in given] + ([] if done else ["all"])
+        prefix = f"{done}," if done else ""
+        return [CompletionItem(prefix + c) for c in options if c.startswith(last)]
+
+    return complete
 
 
 def complete_devices(ctx, param, incomplete: str) -> list[CompletionItem]:

@@ -18,11 +18,12 @@ from smspace.common.cli import (
     friendly_errors,
     on_interrupt,
 )
-from smspace.common.completion import complete_datasets, complete_modes
+from smspace.common.completion import comma_list_completer, complete_datasets
 from smspace.common.errors import SmspaceError
 from smspace.common.rerun_output import view_options
 from smspace.datagen.setups import SETUPS, setup_names
 from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.lake.transitions import MODES
 
 
 @click.group(name="smgen", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
@@ -40,7 +41,10 @@ def main() -> None:
     help="; ".join(f"{s.name}: {s.description}" for s in SETUPS.values()) + "; or a setup a plugin registers",
 )
 @click.option(
-    "--mode", required=True, shell_complete=complete_modes, help="MEM, MM, MME, several separated by commas, or all."
+    "--mode",
+    required=True,
+    shell_complete=comma_list_completer(MODES),
+    help="MEM, MM, MME, several separated by commas, or all.",
 )
 @click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=1, help="Number of worlds; seeds SEED, SEED+1, …")

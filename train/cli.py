@@ -20,11 +20,12 @@ from smspace.common.cli import (
     friendly_errors,
     on_interrupt,
 )
-from smspace.common.completion import complete_datasets, complete_modes
+from smspace.common.completion import comma_list_completer, complete_datasets
 from smspace.common.errors import Interrupted, SmspaceError
 from smspace.common.rerun_output import view_options
 from smspace.datagen.setups import setup_names  # the command line composes generation and training
 from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.lake.transitions import MODES
 from smspace.train.options import (
     config_from_flags,
     config_options,
@@ -148,7 +149,7 @@ def _attempt(action):
     "--modes",
     default="MEM,MM,MME",
     show_default=True,
-    shell_complete=complete_modes,
+    shell_complete=comma_list_completer(MODES),
     help="Comma-separated modes, or all.",
 )
 @click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
