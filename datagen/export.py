@@ -147,16 +147,18 @@ def _parquet(ds: Dataset, out: Path, limit: int | None) -> int:
     meta = {b"smspace.manifest": ds.manifest.to_json().encode()}
     with atomic_writer(out) as fh:
         writer = None
-        for first, tr in _blocks(ds, limit):
-            table = transitions_table(first, tr)
-            if writer is None:
-                writer = pq.ParquetWriter(
-                    fh, table.schema.with_metadata(meta), compression="zstd", use_dictionary=False
-                )
-            writer.write_table(table.replace_schema_metadata(meta), row_group_size=65536)
-            count += len(tr)
-        if writer is not None:
-            writer.close()
+        try:
+            for first, tr in _blocks(ds, limit):
+                table = transitions_table(first, tr)
+                if writer is None:
+                    writer = pq.ParquetWriter(
+                        fh, table.schema.with_metadata(meta), compression="zstd", use_dictionary=False
+                    )
+                writer.write_table(table.replace_schema_metadata(meta), row_group_size=65536)
+                count += len(tr)
+        finally:  # also on a failed read, before atomic_writer drops the file: else the writer's
+            if writer is not None:  # __del__ later writes to a closed file
+                writer.close()
     return count
 
 
