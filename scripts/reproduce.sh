@@ -15,7 +15,8 @@
 #   arm-ambiguity  how alike the views of each arm room are, beside the arm runs' metrics (1 min)
 #   ambiguity   beyond the paper: the arm in rooms whose views repeat (examples/ambiguous-room, a
 #               plugin), 4 levels x 4 worlds x MM, MME x 40000 steps, then its analysis (~80 min)
-#   precision   the grid in fp32 beside bf16, 5 worlds x 3 modes x 20000 steps, then the comparison
+#   precision   the grid in fp32 beside bf16, 10 worlds x 3 modes x 100000 steps each, then the
+#               comparison (~70 min on both cores of this machine)
 #   new         grid-nh25, grid6, arm-more, arm6, then reports (both cores for each sweep)
 #   rest        grid6, arm-more, arm6, then reports (what was left of `new` after a restart)
 #   full        every study at the paper's size (50 worlds × 100000 steps) on a Ray cluster, with
