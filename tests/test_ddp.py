@@ -10,6 +10,8 @@ import time
 
 import pytest
 
+from smspace.train.distributed import PEER_LOST
+from smspace.train.launch import _cause
 from smspace.train.run_dir import RunDir
 from tests.conftest import BIN, SAMPLES
 from tests.servers import assert_loopback_only, stop_group, tree
@@ -89,6 +91,17 @@ def test_a_global_batch_that_does_not_split_is_one_line(tmp_path):
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "--batch-size 101" in lines[0], stderr
     assert not (tmp_path / "run").exists()  # refused before anything was written
+
+
+def test_rank_zeros_own_failure_is_the_cause_whichever_rank_ended_first():
+    """Both ranks stop on a NaN; rank 1 may abort (SIGABRT) while the process group comes down,
+    before rank 0 has exited with its error (seen in a CI run): rank 0's failure is what
+    stopped the run, not the abort, and rank 0 has already said why."""
+    abort = -signal.SIGABRT
+    assert _cause([(1, abort), (0, 1)]) == (0, 1)
+    assert _cause([(0, 1), (1, abort)]) == (0, 1)
+    assert _cause([(1, abort), (0, PEER_LOST)]) == (1, abort)  # rank 0 only lost its peer: the abort is the cause
+    assert _cause([(1, 2), (0, PEER_LOST)]) == (1, 2)
 
 
 def test_a_nan_on_the_ranks_stops_every_rank_at_once(tmp_path):

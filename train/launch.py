@@ -84,6 +84,10 @@ def launch_local(nproc: int, argv: list[str], where: str) -> int:
             how = signal.Signals(-code).name if code < 0 else f"code {code}"
             print(f"smtrain: note: rank {rank} ended with {how} after the run finished", file=sys.stderr)
             return 0
+        for other, how in exits:
+            if other != rank and how < 0 and how != -signal.SIGTERM and rank == 0:
+                name = signal.Signals(-how).name
+                print(f"smtrain: note: rank {other} ended with {name} as the run stopped", file=sys.stderr)
         resume = f"smtrain fit --resume {where} --nproc {nproc}"
         if code < 0:  # died by a signal: nothing of it could speak or record its end
             name = signal.Signals(-code).name
@@ -128,7 +132,9 @@ def _cause(exits: list[tuple[int, int]]) -> tuple[int, int] | None:
     whose peer died) nor our own SIGTERM to the ranks left running."""
     failures = [(r, c) for r, c in exits if c != 0]
     own = [(r, c) for r, c in failures if c not in (PEER_LOST, -signal.SIGTERM, 130)]
-    return (own or failures or [None])[0]
+    said = [(r, c) for r, c in own if r == 0 and c > 0]  # rank 0 failed by itself (a lost peer would
+    # be PEER_LOST) and said why; another rank dying as the group came down did not cause it
+    return (said or own or failures or [None])[0]
 
 
 def _record_failure(where: str, line: str) -> None:
