@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import smspace
+from smspace.train.report import expand_runs  # run folders, given or by their study's folder
 
 
 def plain_fit(h: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -32,16 +33,12 @@ def former_d_metric(h: np.ndarray, p: np.ndarray) -> float:
     return smspace.spatial_scores(plain_fit(h, p), p).d_metric
 
 
-def run_folders(roots: list[str]) -> list[Path]:
-    return sorted({path.parent for root in roots for path in Path(root).rglob("config.json")})
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("roots", nargs="+", help="study or run folders")
     args = parser.parse_args()
     runs, changes = [], defaultdict(list)
-    for folder in run_folders(args.roots):
+    for folder in expand_runs(args.roots):
         run = smspace.open_run(folder)
         rows = run.metrics()
         if not rows:
@@ -49,10 +46,10 @@ def main() -> None:
         step = rows[-1]["step"]
         h, p = run.embeddings(step)
         now, former = smspace.spatial_scores(h, p).d_metric, former_d_metric(h, p)
-        mode = run.config.dataset.rsplit("-", 1)[-1]
+        mode = run.config.mode
         change = (now - former) / former if former else 0.0
         changes[mode].append(change)
-        runs.append({"run": folder.name, "mode": mode, "n_h": run.config.n_h, "step": step, "d_metric": now,
+        runs.append({"run": Path(folder).name, "mode": mode, "n_h": run.config.n_h, "step": step, "d_metric": now,
                      "d_metric_former_fit": former, "relative_change": change})  # fmt: skip
     modes = {
         mode: {"runs": len(c), "mean_relative_change": float(np.mean(c)), "largest": float(np.max(np.abs(c)))}

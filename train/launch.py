@@ -81,19 +81,16 @@ def launch_local(nproc: int, argv: list[str], where: str) -> int:
         rank, code = cause
         if procs[0].returncode == 0:  # the run finished (weights compared at every evaluation, the last
             # included); another rank failing while the process group was torn down cannot touch it
-            how = signal.Signals(-code).name if code < 0 else f"code {code}"
-            print(f"smtrain: note: rank {rank} ended with {how} after the run finished", file=sys.stderr)
+            print(f"smtrain: note: rank {rank} ended with {_how(code)} after the run finished", file=sys.stderr)
             return 0
-        for other, how in exits:
-            if other != rank and how < 0 and how != -signal.SIGTERM and rank == 0:
-                name = signal.Signals(-how).name
-                print(f"smtrain: note: rank {other} ended with {name} as the run stopped", file=sys.stderr)
+        if rank == 0:  # rank 0 said why; a rank killed as the group came down is only noted
+            for other, how in exits:
+                if other != 0 and how < 0 and how != -signal.SIGTERM:
+                    print(f"smtrain: note: rank {other} ended with {_how(how)} as the run stopped", file=sys.stderr)
         resume = f"smtrain fit --resume {where} --nproc {nproc}"
         if code < 0:  # died by a signal: nothing of it could speak or record its end
-            name = signal.Signals(-code).name
-            line = (
-                f"rank {rank} (pid {procs[rank].pid}) was killed by {name}; the run keeps its last checkpoint: {resume}"
-            )
+            killed = f"rank {rank} (pid {procs[rank].pid}) was killed by {_how(code)}"
+            line = f"{killed}; the run keeps its last checkpoint: {resume}"
             print(f"smtrain: error: {line}", file=sys.stderr)
             _record_failure(where, line)
             return 128 - code
@@ -135,6 +132,11 @@ def _cause(exits: list[tuple[int, int]]) -> tuple[int, int] | None:
     said = [(r, c) for r, c in own if r == 0 and c > 0]  # rank 0 failed by itself (a lost peer would
     # be PEER_LOST) and said why; another rank dying as the group came down did not cause it
     return (said or own or failures or [None])[0]
+
+
+def _how(code: int) -> str:
+    """A rank's exit code as a reader wants it: the signal's name, or the code."""
+    return signal.Signals(-code).name if code < 0 else f"code {code}"
 
 
 def _record_failure(where: str, line: str) -> None:
