@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 
 from smspace.common.cli import display_name
 from smspace.common.errors import SmspaceError
+from smspace.lake import parquet
 from smspace.lake.manifest import MANIFEST, Manifest, load_manifest
 from smspace.lake.store import Store, open_store
 
@@ -148,8 +149,7 @@ def read_catalog(lake: Path | str | Store) -> pa.Table:
         return CATALOG_SCHEMA.empty_table()
     versions = manifest_versions(lake)
     try:
-        # no pyarrow thread pool: a BytesIO, or its threads, could abort the process at exit
-        table = pq.read_table(pa.BufferReader(lake.read_bytes(CATALOG)), use_threads=False)
+        table = parquet.read_table(lake.read_bytes(CATALOG))  # lake/parquet.py: no abort at exit
         sources = json.loads((table.schema.metadata or {}).get(SOURCES_KEY, b"null"))
         table = table.replace_schema_metadata(None)
         if _cache_holds(table, sources, versions):

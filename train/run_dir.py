@@ -25,9 +25,11 @@ import torch
 from smspace.common import provenance
 from smspace.common.errors import SmspaceError
 from smspace.common.locks import HeldLock
+from smspace.lake import parquet
 from smspace.lake.store import Store, WriteConflict, open_store
 from smspace.train import tensorboard
 from smspace.train.config import TrainConfig
+from smspace.train.precision import compile_decision
 
 CONFIG = "config.json"
 METRICS = "metrics.parquet"
@@ -188,9 +190,12 @@ class RunDir:
         self._write(CONFIG, _config_bytes(cfg))
 
     def record_session(self, device: str, threads: int) -> None:
-        """Add what this training session runs on to config.json (by the process that claimed it)."""
+        """Add what this training session runs on to config.json (by the process that claimed it),
+        with what it does of --compile here (train/precision.py: the decision the steps act on)."""
         cfg = self.config
-        self.write_config(replace(cfg, sessions=[*cfg.sessions, provenance.session(device, threads)]))
+        decided = compile_decision(cfg.compile)
+        done = {"compile": decided} if decided is not None else {}
+        self.write_config(replace(cfg, sessions=[*cfg.sessions, provenance.session(device, threads, **done)]))
 
     @classmethod
     def open(cls, where: Path | str | Store) -> RunDir:
@@ -259,7 +264,7 @@ class RunDir:
     # -- metrics and embeddings -------------------------------------------------------------
     def metrics(self) -> list[dict[str, Any]]:
         try:
-            return _parquet(self._read(METRICS)).to_pylist()
+            return parquet.read_table(self._read(METRICS)).to_pylist()
         except FileNotFoundError:
             return []
         except (OSError, pa.ArrowException) as e:
@@ -313,7 +318,7 @@ class RunDir:
         self.set_status("running", step)
 
     def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
-        table = _parquet(self._read(embedding_file(step), self._embeddings()))
+        table = parquet.read_table(self._read(embedding_file(step), self._embeddings()))
         return _from_fixed_list(table["h"]), _from_fixed_list(table["p"])
 
     def predictions(self, step: int) -> np.ndarray:
@@ -364,7 +369,7 @@ class RunDir:
         (two processes writing one folder): continuing it would mix them."""
         ids = {CONFIG: self.run_id, CHECKPOINT: str(checkpoint.get(RUN_ID) or "")}
         try:
-            metadata = pq.read_schema(pa.BufferReader(self._read(METRICS))).metadata or {}
+            metadata = parquet.read_schema(self._read(METRICS)).metadata or {}
             ids[METRICS] = metadata.get(RUN_ID.encode(), b"").decode()
         except FileNotFoundError:
             pass
@@ -403,12 +408,6 @@ class RunDir:
 
 def _config_bytes(cfg: TrainConfig) -> bytes:
     return (json.dumps(cfg.to_dict(), indent=1) + "\n").encode()
-
-
-def _parquet(data: bytes) -> pa.Table:
-    # small tables, read without pyarrow's thread pool: its threads could abort the process at exit
-    # ("terminate called without an active exception", 1 exit in 10 beside torch), as a Python file object did
-    return pq.read_table(pa.BufferReader(data), use_threads=False)
 
 
 def _npy(data: bytes) -> np.ndarray:
