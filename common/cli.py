@@ -10,6 +10,7 @@ import json
 import os
 import signal
 import sys
+import traceback
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -51,6 +52,8 @@ def friendly_errors(fn: Callable) -> Callable:
         try:
             return fn(*args, **kwargs)
         except SmspaceError as e:
+            if os.environ.get("SMSPACE_TRACEBACK") and e.__cause__ is not None:  # a plugin's own traceback
+                traceback.print_exception(e.__cause__, file=sys.stderr)
             fail(str(e), e.exit_code)
 
     return wrapper

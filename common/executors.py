@@ -14,9 +14,11 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.managers import SyncManager
 from pathlib import Path
 from typing import Any
 
@@ -84,13 +86,46 @@ def _dead(workers: dict, wait_s: float = 0.0) -> WorkerDied | None:
 def _quiet_resource_tracker() -> None:
     """The semaphores of a killed worker make multiprocessing's resource tracker warn about "leaked
     semaphore objects" at exit; it cleans them up all the same. The tracker takes its warning
-    filters from sys.warnoptions when it starts, so they are set before it does."""
+    filters from sys.warnoptions when it starts, so they are set before it does. And the tracker is
+    made to survive its own death (_remember_registrations)."""
     rule = "ignore:resource_tracker:UserWarning"
     if rule not in sys.warnoptions:
         sys.warnoptions.append(rule)
     from multiprocessing import resource_tracker
 
+    _remember_registrations(resource_tracker._resource_tracker)
     resource_tracker.ensure_running()
+
+
+def _remember_registrations(tracker: Any) -> None:
+    """The resource tracker is a process of its own; killed, multiprocessing starts another on the
+    next call, with a warning, and that one knows none of the semaphores this process registered:
+    each later unregistration printed a KeyError traceback (five after a sweep). This process
+    remembers what it registered and tells a restarted tracker, so that one cleans up as the
+    first would have, silently."""
+    if getattr(tracker, "_smspace_live", None) is not None:
+        return
+    live: dict[tuple[str, str], None] = {}
+    tracker._smspace_live = live
+    send, ensure = tracker._send, tracker.ensure_running
+
+    def ensure_running() -> None:
+        before = tracker._pid
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="resource_tracker: process died unexpectedly")
+            ensure()
+        if before is not None and tracker._pid != before:  # started anew: it knows nothing yet
+            for name, rtype in list(live):
+                os.write(tracker._fd, f"REGISTER:{name}:{rtype}\n".encode("ascii"))
+
+    def remembered_send(cmd: str, name: str, rtype: str) -> None:
+        send(cmd, name, rtype)
+        if cmd == "REGISTER":
+            live[(name, rtype)] = None
+        elif cmd == "UNREGISTER":
+            live.pop((name, rtype), None)
+
+    tracker.ensure_running, tracker._send = ensure_running, remembered_send
 
 
 EXECUTORS = ("local", "ray")
@@ -125,7 +160,10 @@ class Executor:
         elif self.workers <= 1:
             yield queue.SimpleQueue()
         else:
-            with multiprocessing.get_context("spawn").Manager() as manager:
+            # the manager is a process of its own: started to die with this one, however it dies
+            manager = SyncManager(ctx=multiprocessing.get_context("spawn"))
+            manager.start(die_with_parent, (signal.SIGKILL, os.getpid()))
+            with manager:
                 yield manager.Queue()
 
     def map(self, fn: Callable, tasks: list[tuple]) -> Iterator[tuple[tuple, Any]]:

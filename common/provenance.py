@@ -78,11 +78,11 @@ def device_name(device: str) -> str:
         return device
 
 
-def session(device: str, threads: int) -> dict[str, Any]:
-    """One training session's record."""
+def session(device: str, threads: int, **done: Any) -> dict[str, Any]:
+    """One training session's record; `done`: what the session decided (how it compiled)."""
     import torch
 
-    return {
+    return done | {
         "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "smspace": version("smspace"),
         "git_commit": git_commit(),

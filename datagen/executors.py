@@ -38,14 +38,17 @@ def _transitions(task: Task) -> int:
 
 
 @contextlib.contextmanager
-def open_executor(executor: str, setup: str, options: ExecutorOptions) -> Iterator[Runner]:
+def open_executor(
+    executor: str, setup: str, options: ExecutorOptions, probe_world: int | None = None
+) -> Iterator[Runner]:
     """A runner of tasks, once the setup's pre-flight passed where the parts will run (before
-    anything is written; on Ray, on a worker: the driver may have no Vulkan). The runner runs every
-    task, in any order; an error stops the others and is raised in one line."""
+        anything is written; on Ray, on a worker: the driver may have no Vulkan), with world `probe_world`
+    held to the setup contract. The runner runs every
+        task, in any order; an error stops the others and is raised in one line."""
     ray_options = {"num_cpus": 1, "num_gpus": options.gpus_per_task, "max_retries": options.max_retries}
     # GPU tasks default to max_calls=1 (a fresh worker, hence a fresh SAPIEN room, per part)
     with shared_executor(executor, options.workers, **ray_options, retry_exceptions=False, max_calls=0) as ex:
-        ex.call(preflight, setup)
+        ex.call(preflight, setup, probe_world)
         yield _progress(lambda tasks: ex.map(write_part, tasks))
 
 

@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from smspace import schemas
+from smspace.common import plugins
 from smspace.common.errors import SmspaceError
 from smspace.datagen.executors import ExecutorOptions, open_executor
 from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
-from smspace.datagen.setups import get_setup
+from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.catalog import check_lake, rebuild_catalog
 from smspace.lake.integrity import file_problem
 from smspace.lake.manifest import (
@@ -69,15 +70,28 @@ class Plan:
     complete: bool
 
 
-def _recorded_hash(folder: Store) -> str | None:
+def _recorded(folder: Store) -> tuple[str, dict] | None:
+    """(config hash, config) of the dataset's manifest or unfinished generation; None if neither."""
     for name in (MANIFEST, GENERATION):
         try:
-            return json.loads(folder.read_bytes(name))["config_hash"]
+            raw = json.loads(folder.read_bytes(name))
+            return raw["config_hash"], raw["config"] if isinstance(raw.get("config"), dict) else {}
         except (FileNotFoundError, NotADirectoryError):
             continue
         except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError, SmspaceError):
-            return "unreadable"
+            return "unreadable", {}
     return None
+
+
+def _what_changed(recorded: dict, cfg: GenConfig) -> str:
+    """The config fields that differ, plugin fields by name ("plugin code_sha256 a -> b")."""
+    now = cfg.to_dict()
+    was_plugin, now_plugin = recorded.get("plugin") or {}, now.get("plugin") or {}
+    parts = [f"plugin {plugins.changes(was_plugin, now_plugin)}"] if was_plugin != now_plugin else []
+    rest = {k: v for k, v in recorded.items() if k != "plugin"}
+    if {k: v for k, v in now.items() if k != "plugin"} != rest:
+        parts.append(plugins.changes(rest, {k: v for k, v in now.items() if k != "plugin"}))
+    return "; ".join(parts)
 
 
 def _clear_dataset(folder: Store) -> None:
@@ -102,12 +116,14 @@ def plan_dataset(
     notify: Callable[[str], None] = lambda line: None,
 ) -> Plan:
     folder = lake.child(cfg.dataset_id)
-    recorded = _recorded_hash(folder)
+    found = _recorded(folder)
+    recorded = found[0] if found else None
     if recorded is not None and recorded != cfg.config_hash:
         if not overwrite:
+            changed = _what_changed(found[1], cfg) if found[1] else ""
             raise SmspaceError(
-                f"dataset {cfg.dataset_id} in {lake} was generated with another config; "
-                "pass --overwrite to replace it, or choose another --lake"
+                f"dataset {cfg.dataset_id} in {lake} was generated with another config"
+                f"{f' ({changed})' if changed else ''}; pass --overwrite to replace it, or choose another --lake"
             )
         _clear_dataset(folder)
     elif recorded is not None and folder.exists(MANIFEST):
@@ -255,12 +271,16 @@ def generate(
     _check_request(transitions, shard_size)
     if overwrite and not share.whole:
         raise SmspaceError("--overwrite cannot be combined with --world-size: ranks would delete each other's parts")
-    spec = get_setup(setup)
+    spec, plugin = get_setup(setup), setup_plugin(setup)
+    record = plugin.record() if plugin is not None else None  # a changed plugin is a changed config
+    world_seeds = list(world_seeds)
     options = options or ExecutorOptions(workers=workers)
     with contextlib.ExitStack() as held:
-        run_parts = held.enter_context(open_executor(executor, setup, options))  # pre-flight: before any write
+        probe = world_seeds[0] if world_seeds else None  # the setup contract on a probe batch, before any write
+        run_parts = held.enter_context(open_executor(executor, setup, options, probe))
         lake = check_lake(lake)
-        configs = [GenConfig(setup, mode, seed, transitions, shard_size) for seed in world_seeds for mode in modes]
+        sizes = transitions, shard_size
+        configs = [GenConfig(setup, mode, seed, *sizes, plugin=record) for seed in world_seeds for mode in modes]
         _check_disk(lake, configs, spec.bytes_per_transition, share)
         if share.whole:  # one generator per dataset: a second command waits, then finds it done
             for cfg in sorted(configs, key=lambda c: c.dataset_id):

@@ -16,8 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from smspace.common import plugins
 from smspace.common.errors import SmspaceError
-from smspace.datagen.setups import MODES, World, draw_transitions, get_setup
+from smspace.datagen.setups import MODES, World, draw_transitions, get_setup, setup_label, setup_plugin
+from smspace.datagen.setups.contract import check_block, check_regular, check_world, declared
 from smspace.lake.manifest import REGULAR_FILE, GenConfig, shard_name, software_versions
 from smspace.lake.shards import Block, ShardReader, regular_sampling_bytes, shard_bytes
 from smspace.lake.store import Store
@@ -60,7 +62,8 @@ def world_for(setup: str, seed: int) -> World:
     """One world per (setup, seed) per process: building the SAPIEN room is not free."""
     key = (setup, seed)
     if key not in _WORLDS:
-        _WORLDS[key] = get_setup(setup).build(seed)
+        with plugins.guarded(setup_plugin(setup), f"building world {seed}"):
+            _WORLDS[key] = get_setup(setup).build(seed)
     return _WORLDS[key]
 
 
@@ -103,17 +106,24 @@ def _shard_record(part: int, data: bytes, blocks: list[Block], stats: dict[str, 
 def write_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord:
     """Draw and store one part (a shard, or the regular sampling when part == REGULAR)."""
     world = world_for(cfg.setup, cfg.world_seed)
+    spec, plugin = get_setup(cfg.setup), setup_plugin(cfg.setup)
+    where = f"{setup_label(cfg.setup)}, dataset {cfg.dataset_id}, {part_file(part)}"
+    declares = declared(spec, world, where)
     if part == REGULAR:
-        m, p = world.regular_sampling()
+        with plugins.guarded(plugin, f"in regular_sampling() of world {cfg.world_seed}"):
+            m, p = world.regular_sampling()
+        check_regular(m, p, declares[0], where)
         data = regular_sampling_bytes(m, p)
         folder.put(REGULAR_FILE, data)
         return PartRecord.of(part, data, len(m), m.shape[1], software=made_with(cfg.setup))
     rng = shard_rng(cfg, part)
     lo, hi = cfg.shard_range(part)
-    blocks = [
-        Block(start, draw_transitions(world, cfg.mode, rng, min(cfg.batch_size, hi - start)))
-        for start in range(lo, hi, cfg.batch_size)
-    ]
+    blocks = []
+    for start in range(lo, hi, cfg.batch_size):
+        with plugins.guarded(plugin, f"drawing transitions of world {cfg.world_seed} ({cfg.mode})"):
+            tr = draw_transitions(world, cfg.mode, rng, min(cfg.batch_size, hi - start))
+        check_block(tr, declares, f"{where}, transitions {start}..{start + len(tr) - 1}")
+        blocks.append(Block(start, tr))
     stats = _stats(blocks)
     metadata = {
         "dataset_id": cfg.dataset_id,
@@ -159,6 +169,11 @@ def made_with(setup: str) -> dict[str, str]:
     return software_versions() | get_setup(setup).provenance()
 
 
-def preflight(setup: str) -> None:
-    """The setup's own check (Vulkan for the arm), where the parts will be drawn."""
-    get_setup(setup).preflight()
+def preflight(setup: str, world_seed: int | None = None) -> None:
+    """The setup's own check (Vulkan for the arm), where the parts will be drawn; then its world
+    `world_seed` is built and held to the contract on a probe batch (datagen/setups/contract.py)."""
+    spec = get_setup(setup)
+    with plugins.guarded(setup_plugin(setup), "in its preflight()"):
+        spec.preflight()
+    if world_seed is not None:
+        check_world(spec, world_for(setup, world_seed), world_seed)

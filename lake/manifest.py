@@ -45,6 +45,9 @@ class GenConfig:
     transitions: int
     shard_size: int
     batch_size: int = BATCH_SIZE
+    # a plugin setup's code: {entry_point, distribution, version, code_sha256} (None: smspace's own
+    # setup, and then absent from the record, so that those hashes are what they always were)
+    plugin: dict[str, str] | None = None
 
     @property
     def dataset_id(self) -> str:
@@ -59,7 +62,10 @@ class GenConfig:
         return lo, min(lo + self.shard_size, self.transitions)
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        record = asdict(self)
+        if record["plugin"] is None:
+            del record["plugin"]
+        return record
 
     def problem(self) -> str | None:
         """What makes this config impossible to hold or to trust, or None."""
@@ -68,6 +74,11 @@ class GenConfig:
             return "config counts are not integers"
         if not (isinstance(self.setup, str) and isinstance(self.mode, str) and 0 <= self.world_seed <= SEED_MAX):
             return "config names no valid setup, mode or seed"
+        plugin = self.plugin
+        if plugin is not None and not (
+            isinstance(plugin, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in plugin.items())
+        ):
+            return "config plugin is not a record of strings"
         bounds = (
             ("transitions", 1, MAX_TRANSITIONS),
             ("shard_size", 1, MAX_SHARD_SIZE),

@@ -17,10 +17,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from smspace.common import plugins
 from smspace.common.cli import default_workers
 from smspace.common.errors import SmspaceError
 from smspace.common.progress import duration
-from smspace.datagen.setups import draw_transitions, get_setup
+from smspace.datagen.parts import world_for
+from smspace.datagen.setups import draw_transitions, get_setup, setup_plugin
+from smspace.datagen.setups.contract import check_world
 from smspace.lake.manifest import GenConfig
 from smspace.lake.store import Store, open_store
 from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study
@@ -127,8 +130,10 @@ class SetupProbe:
 
     @classmethod
     def of(cls, setup: str, seed: int, mode: str) -> SetupProbe:
-        world = get_setup(setup).build(seed)
-        rate = _generation_rate(world, mode)
+        world = world_for(setup, seed)  # built once, guarded: a plugin's error is one line
+        check_world(get_setup(setup), world, seed)  # what generation would refuse, refused here
+        with plugins.guarded(setup_plugin(setup), f"drawing transitions of world {seed} ({mode})"):
+            rate = _generation_rate(world, mode)
         return cls(rate, int(np.prod(world.sensor_shape)), len(world.regular_sampling()[0]))
 
 

@@ -13,16 +13,20 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from smspace.common.bounded import run_within
 from smspace.common.errors import SmspaceError
 from smspace.common.executors import WorkerDied, import_ray, open_executor
 from smspace.datagen.generate import generate
+from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup
 from smspace.lake.catalog import check_lake
 from smspace.lake.manifest import load_manifest
 from smspace.lake.store import Store, open_store
 from smspace.study.monitor import StudyMonitor, monitored
 from smspace.train.config import TrainConfig
+from smspace.train.contract import check_model
 from smspace.train.ensemble import train_ensemble
 from smspace.train.run_dir import CONFIG, RunDir
 from smspace.train.terms import HISTORY, STUDY, differing, study_template, terms
@@ -167,8 +171,19 @@ class SweepPlan:
 
 def check_terms(study: SweepPlan, out: Store, overwrite: bool) -> tuple[TrainConfig, str | None]:
     """The template the sweep in `out` trains with, and the line that says how its terms change;
-    refused before anything is generated if they may not."""
-    return plan_study(study.template, study.setup, study.n_transitions, out, overwrite, study.explicit)
+    refused before anything is generated if they may not, or if its model breaks its contract."""
+    template, change = plan_study(study.template, study.setup, study.n_transitions, out, overwrite, study.explicit)
+    check_study_model(template, study.setup, study.world_seeds[0])
+    return template, change
+
+
+def check_study_model(template: TrainConfig, setup: str, seed: int) -> None:
+    """The study's network run once on a probe batch of the setup's sizes (train/contract.py), before
+    any dataset is generated: a broken model is refused before anything is written. The world is
+    the one generation's pre-flight builds and keeps (datagen/parts.py, world_for)."""
+    n_sensor = int(np.prod(world_for(setup, seed).sensor_shape))
+    layers = template.encoder_layers, template.predictor_layers
+    check_model(template.model, get_setup(setup).n_motor, n_sensor, template.n_h, *layers, template.model_params)
 
 
 def prepare(
@@ -259,13 +274,14 @@ def _reporter(channel: Any, key: str) -> Callable[[int], None] | None:
     return report
 
 
-def _mark_stopped(runs: list[RunDir], line: str) -> None:
-    """The runs a dead worker (or its killed siblings) left "running" say why they stopped."""
+def _mark_stopped(runs: list[RunDir], state: str, line: str) -> None:
+    """The runs a dead worker (or its killed siblings, or an interrupted sweep) left "running" say
+    why they stopped."""
 
     def mark(run: RunDir) -> None:
-        status = RunDir.open(run.store).status()
-        if status["state"] in ("running", "stale"):
-            run.set_status("failed", status["step"], line)
+        now = RunDir.open(run.store)
+        if now.status()["state"] in ("running", "stale"):
+            run.set_status(state, now.checkpoint_step(), line)  # the step it resumes from
 
     run_within([lambda run=run: mark(run) for run in runs])
 
@@ -296,8 +312,12 @@ def run_ensembles(
                     pass
     except WorkerDied as e:
         line = f"{e}; the runs keep their last checkpoints: the same command resumes them"
-        _mark_stopped([run for runs, _ in chunks for run in runs], line)
+        _mark_stopped([run for runs, _ in chunks for run in runs], "failed", line)
         raise WorkerDied(line) from None
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the workers were killed mid-step, as a lone fit is
+        line = "interrupted; the checkpoint of its last evaluation is kept: the same sweep resumes it"
+        _mark_stopped([run for runs, _ in chunks for run in runs], "interrupted", line)
+        raise
 
 
 def _start_step(runs: list[RunDir]) -> int:

@@ -18,7 +18,7 @@ from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import canonical
 from smspace.lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
 from smspace.lake.store import Store, open_store
-from smspace.train.model import DEFAULT_MODEL, build_model
+from smspace.train.model import DEFAULT_MODEL, build_model, plugin_record
 from smspace.train.model import parameter_count as count_parameters
 from smspace.train.precision import PRECISIONS
 from smspace.train.precision import resolve as resolve_precision
@@ -75,6 +75,9 @@ class TrainConfig:
         "or auto (decided when the run is created: docs/MODEL.md §3).",
     )
     compile: bool = flag(False, "Compile the training step with torch.compile (a CPU needs a C++ compiler).")
+    precision_asked: str = ""  # what --precision said (auto); `precision` is what it was resolved to
+    # the model's package when a plugin ({} for smspace's own): distribution, version, code hash
+    model_plugin: dict[str, str] = field(default_factory=dict)
     # fixed by design, recorded so that a run folder says everything its numbers depend on
     eval_transitions: int = 4096  # the fixed set the evaluation loss is computed on
     shuffle_window: int = 8
@@ -98,7 +101,8 @@ class TrainConfig:
             self.lr_decay_steps = max(1, round(0.8 * self.steps))
         if self.precision not in PRECISIONS:
             raise SmspaceError(f"--precision {self.precision!r}: one of {', '.join(PRECISIONS)}")
-        if self.precision == "auto":  # decided once, here; the run records what was decided
+        self.precision_asked = self.precision_asked or self.precision
+        if self.precision == "auto":  # decided once, here; the run records what was asked and decided
             self.precision = resolve_precision(self.precision, self.device)[0]
 
     @property
@@ -118,7 +122,13 @@ class TrainConfig:
         """This config for datasets of one setup and size: what a study's runs share; the encoder
         the setup suggests unless one was given."""
         encoder = self.encoder_layers or encoder_layers
-        return replace(self, setup=setup, dataset_transitions=transitions, encoder_layers=list(encoder))
+        return replace(
+            self,
+            setup=setup,
+            dataset_transitions=transitions,
+            encoder_layers=list(encoder),
+            model_plugin=plugin_record(self.model),
+        )
 
     def for_dataset(self, folder: Store | Path, manifest) -> TrainConfig:
         """This config bound to a dataset: its identity, setup, mode and the encoder its manifest

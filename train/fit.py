@@ -18,6 +18,7 @@ from torch.nn.parallel import DistributedDataParallel
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.train.config import TrainConfig, check_resources
+from smspace.train.contract import check_model
 from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch, ranks_agree
 from smspace.train.evaluation import N_PREDICTIONS, EvalData
 from smspace.train.loop import (
@@ -81,6 +82,7 @@ def plan_fit(
         manifest = ds.manifest
         cfg = cfg if cfg.encoder_layers else cfg.for_dataset(ds.store, manifest)  # a config built by hand
         check_resources(cfg, manifest)
+        check_network(cfg, manifest)
         checkpoint = run.load_checkpoint()
         check_checkpoint(checkpoint, cfg, manifest, f"{run.path}/{CHECKPOINT}")
         run.check_whole(checkpoint)
@@ -91,6 +93,7 @@ def plan_fit(
     cfg = replace(template.for_dataset(ds.store, ds.manifest), world_size=world)
     resolve_device(cfg.device)
     check_resources(cfg, ds.manifest)
+    check_network(cfg, ds.manifest)
     per_rank_batch(cfg.batch_size, Ranks(0, world))
     where = out or f"{RUNS}/{cfg.run_name}"
     RunDir.creatable(where, overwrite)
@@ -102,6 +105,14 @@ def network(cfg: TrainConfig, n_motor: int, n_sensor: int) -> torch.nn.Module:
     return build_model(
         cfg.model, n_motor, n_sensor, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers, cfg.model_params
     )
+
+
+def check_network(cfg: TrainConfig, manifest) -> None:
+    """The run's model holds to its contract on a probe batch (train/contract.py), after the memory
+    it needs was found to be there."""
+    n_sensor = int(np.prod(manifest.sensor_shape))
+    layers = cfg.encoder_layers, cfg.predictor_layers
+    check_model(cfg.model, manifest.n_motor, n_sensor, cfg.n_h, *layers, cfg.model_params)
 
 
 def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):

@@ -9,17 +9,19 @@ registers one under the entry-point group `smspace.models` (docs/API.md, "Plugin
 
 from __future__ import annotations
 
+import inspect
 import itertools
 import math
 from collections.abc import Sequence
 from functools import cache
-from importlib.metadata import entry_points
 from typing import Any
 
 import torch
 from torch import nn
 
+from smspace.common import plugins
 from smspace.common.errors import SmspaceError
+from smspace.common.plugins import Plugin
 
 DEFAULT_MODEL = "sensorimotor"
 ENTRY_POINTS = "smspace.models"
@@ -85,22 +87,41 @@ def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pred - target).pow(2).sum(dim=-1).mean(dim=-1)
 
 
-@cache
 def model_names() -> tuple[str, ...]:
     """Every model a run may name: the built-in one and the registered ones (not loaded)."""
-    return (DEFAULT_MODEL, *sorted(ep.name for ep in entry_points(group=ENTRY_POINTS) if ep.name != DEFAULT_MODEL))
+    return (DEFAULT_MODEL, *sorted(name for name in plugins.registered(ENTRY_POINTS) if name != DEFAULT_MODEL))
+
+
+@cache
+def _loaded(name: str) -> tuple[type[nn.Module], Plugin | None]:
+    if name == DEFAULT_MODEL:
+        return SensorimotorNet, None
+    ep = plugins.registered(ENTRY_POINTS).get(name)
+    if ep is None:
+        raise SmspaceError(f"unknown model {name!r} (choose from {', '.join(model_names())})")
+    return plugins.load("model", ep)
 
 
 def model_class(name: str) -> type[nn.Module]:
-    if name == DEFAULT_MODEL:
-        return SensorimotorNet
-    for ep in entry_points(group=ENTRY_POINTS):
-        if ep.name == name:
-            try:
-                return ep.load()
-            except Exception as e:
-                raise SmspaceError(f"model {name!r} ({ep.value}) cannot be loaded: {type(e).__name__}: {e}") from None
-    raise SmspaceError(f"unknown model {name!r} (choose from {', '.join(model_names())})")
+    return _loaded(name)[0]
+
+
+def model_plugin(name: str) -> Plugin | None:
+    """The package a model comes from (None: smspace's own)."""
+    return _loaded(name)[1]
+
+
+def model_label(name: str) -> str:
+    """How messages name a model: a plugin's with its entry point."""
+    plugin = model_plugin(name)
+    return plugin.label if plugin is not None else f"model {name!r}"
+
+
+def plugin_record(name: str) -> dict[str, str]:
+    """What config.json records of the model's code ({} for smspace's own, which smspace's version
+    and git commit already name)."""
+    plugin = model_plugin(name)
+    return plugin.record() if plugin is not None else {}
 
 
 def build_model(
@@ -112,12 +133,20 @@ def build_model(
     predictor_layers: Sequence[int],
     params: dict[str, Any] | None = None,
 ) -> nn.Module:
-    """A model by name, with its own parameters; a plugin's bad parameters are one line."""
-    cls = model_class(name)
+    """A model by name, with its own parameters. Parameters its constructor does not take are one
+    line; whatever its constructor raises is one line naming it, as raised."""
+    cls, plugin = _loaded(name)
+    args = (n_motor, n_sensor, n_h, list(encoder_layers), list(predictor_layers))
     try:
-        model = cls(n_motor, n_sensor, n_h, list(encoder_layers), list(predictor_layers), **(params or {}))
+        inspect.signature(cls).bind(*args, **(params or {}))
     except TypeError as e:
         raise SmspaceError(f"model {name!r} does not take these parameters ({e})") from None
+    except ValueError:  # no signature to read (a builtin): the call itself says
+        pass
+    with plugins.guarded(plugin, "in its constructor"):
+        model = cls(*args, **(params or {}))
+    if not isinstance(model, nn.Module):
+        raise SmspaceError(f"model {name!r} built a {type(model).__name__}, not a torch.nn.Module")
     for method in ("encode", "forward"):
         if not callable(getattr(model, method, None)):
             raise SmspaceError(f"model {name!r} has no {method}(); a model encodes m and predicts s_t1")

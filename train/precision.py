@@ -17,7 +17,6 @@ from collections.abc import Callable, Iterator
 import torch
 
 from smspace.common import provenance
-from smspace.common.errors import one_line
 
 PRECISIONS = ("fp32", "bf16", "auto")
 NATIVE_BF16_FLAGS = ("amx_bf16", "avx512_bf16")
@@ -61,15 +60,27 @@ def autocast(precision: str, device: torch.device) -> Iterator[None]:
         yield
 
 
-def compiled(fn: Callable, enabled: bool, say: Callable[[str], None] | None = None) -> Callable:
-    """`fn` through torch.compile when asked and when it works here (inductor needs a C++
-    compiler on a CPU): a tiny function is compiled first, and a failure is one line, then eager."""
+def compile_decision(enabled: bool) -> str | None:
+    """What --compile does here, as recorded in each session of config.json: "torch.compile", or
+    "eager: why" when torch.compile does not work here (inductor needs a C++ compiler on a CPU);
+    None when not asked. One decision per process, the same one `compiled` acts on."""
     if not enabled:
-        return fn
-    say = say or (lambda line: print(line, file=sys.stderr, flush=True))
+        return None
     problem = _compile_problem()
-    if problem is not None:
-        say(f"--compile: torch.compile does not work here ({problem}); training eagerly")
+    return "torch.compile" if problem is None else f"eager: torch.compile does not work here ({problem})"
+
+
+def compiled(fn: Callable, enabled: bool, say: Callable[[str], None] | None = None) -> Callable:
+    """`fn` through torch.compile when asked and when it works here: a tiny function is compiled
+    first, and a failure is one line (said once per process), then eager."""
+    decision = compile_decision(enabled)
+    if decision is None:
+        return fn
+    if decision != "torch.compile":
+        if not _checked.get("said"):
+            _checked["said"] = "yes"
+            say = say or (lambda line: print(line, file=sys.stderr, flush=True))
+            say(f"--compile: {decision.removeprefix('eager: ')}; training eagerly (recorded in config.json)")
         return fn
     return torch.compile(fn)
 
@@ -84,8 +95,15 @@ def _compile_problem() -> str | None:
             probe(torch.ones(4))
             _checked["result"] = None
         except Exception as e:  # inductor raises many kinds (no compiler, a bad toolchain)
-            _checked["result"] = one_line(e, limit=200)
+            _checked["result"] = _first_sentence(e)
     return _checked["result"]
+
+
+def _first_sentence(e: BaseException) -> str:
+    """The exception's type and its message's first line, whole: inductor's messages run on for
+    pages, and a line cut at a fixed width ends mid-sentence."""
+    lines = [line.strip() for line in str(e).splitlines() if line.strip()]
+    return f"{type(e).__name__}: {lines[0]}" if lines else type(e).__name__
 
 
 Loss = Callable[..., torch.Tensor]

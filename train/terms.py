@@ -25,11 +25,13 @@ from dataclasses import replace
 from typing import Any
 
 from smspace.common.errors import SmspaceError
+from smspace.common.plugins import changes
 from smspace.train.config import TrainConfig
+from smspace.train.model import plugin_record
 
 PER_RUN = ("dataset", "dataset_id", "dataset_config_hash", "dataset_shards_sha256", "mode", "seed", "run_id")
 EXECUTION = ("device", "threads", "loader_workers", "world_size", "compile")  # how a run ran, not what it computed
-HISTORY = ("extensions", "sessions")  # what happened to a run, not what it computes
+HISTORY = ("extensions", "sessions", "precision_asked")  # what happened to a run or was asked, not what it computes
 STUDY = "study.json"
 
 
@@ -49,6 +51,7 @@ def schedule(cfg: TrainConfig) -> str:
 
 def resumed(recorded: TrainConfig, where: str, steps: int | None, world_size: int) -> tuple[TrainConfig, str | None]:
     """The config `--resume` continues with (rules 1-3), and the line that says what changed."""
+    same_model_code(recorded, where)
     if recorded.world_size != world_size:
         raise SmspaceError(
             f"{where} was trained on {recorded.world_size} process(es); resume it on as many "
@@ -68,6 +71,20 @@ def resumed(recorded: TrainConfig, where: str, steps: int | None, world_size: in
         extended,
         f"extending {where} from {recorded.steps} to {steps} steps on its recorded schedule ({schedule(recorded)})",
     )
+
+
+def same_model_code(recorded: TrainConfig, where: str) -> None:
+    """A run is trained by the code it was created with (rule 1): a plugin model whose installed
+    version or code differs from the recorded one is another model."""
+    if not recorded.model_plugin:  # smspace's own model, or a run recorded before plugins were
+        return
+    now = plugin_record(recorded.model)
+    if now != recorded.model_plugin:
+        raise SmspaceError(
+            f"model {recorded.model!r} changed since {where} was created "
+            f"({changes(recorded.model_plugin, now)}); a run is trained by one "
+            "model's code: install the recorded one, or train a new run"
+        )
 
 
 def study_template(

@@ -6,9 +6,10 @@ command needs one: their names come from the package metadata."""
 from __future__ import annotations
 
 from functools import cache
-from importlib.metadata import entry_points
 
+from smspace.common import plugins
 from smspace.common.errors import SmspaceError
+from smspace.common.plugins import Plugin
 from smspace.datagen.setups import arm, grid
 from smspace.datagen.setups.base import Setup, World, draw_transitions
 from smspace.lake.transitions import MODES, Transitions, check_mode, parse_modes
@@ -17,9 +18,8 @@ ENTRY_POINTS = "smspace.setups"
 SETUPS: dict[str, Setup] = {s.name: s for s in (*grid.SETUPS, *arm.SETUPS)}  # the built-in ones
 
 
-@cache
 def _plugins() -> dict[str, object]:
-    return {ep.name: ep for ep in entry_points(group=ENTRY_POINTS) if ep.name not in SETUPS}
+    return {name: ep for name, ep in plugins.registered(ENTRY_POINTS).items() if name not in SETUPS}
 
 
 def setup_names() -> tuple[str, ...]:
@@ -28,20 +28,32 @@ def setup_names() -> tuple[str, ...]:
 
 
 @cache
-def get_setup(name: str) -> Setup:
+def _loaded(name: str) -> tuple[Setup, Plugin | None]:
     if name in SETUPS:
-        return SETUPS[name]
+        return SETUPS[name], None
     ep = _plugins().get(name)
     if ep is None:
         raise SmspaceError(f"unknown setup {name!r} (choose from {', '.join(setup_names())})")
-    try:
-        found = ep.load()
-    except Exception as e:
-        raise SmspaceError(f"setup {name!r} ({ep.value}) cannot be loaded: {type(e).__name__}: {e}") from None
+    found, plugin = plugins.load("setup", ep)
     for setup in found if isinstance(found, list | tuple) else [found]:
         if isinstance(setup, Setup) and setup.name == name:
-            return setup
+            return setup, plugin
     raise SmspaceError(f"the entry point {ep.value} of setup {name!r} declares no Setup named {name!r}")
+
+
+def get_setup(name: str) -> Setup:
+    return _loaded(name)[0]
+
+
+def setup_plugin(name: str) -> Plugin | None:
+    """The package a setup comes from (None: smspace's own)."""
+    return _loaded(name)[1]
+
+
+def setup_label(name: str) -> str:
+    """How messages name a setup: a plugin's with its entry point."""
+    plugin = setup_plugin(name)
+    return plugin.label if plugin is not None else f"setup {name!r}"
 
 
 __all__ = [
@@ -55,4 +67,6 @@ __all__ = [
     "get_setup",
     "parse_modes",
     "setup_names",
+    "setup_label",
+    "setup_plugin",
 ]

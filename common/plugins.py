@@ -1,0 +1,118 @@
+"""Code of other packages, registered through entry points (setups, models): found by name, loaded
+when needed, recorded by what it is (distribution, version, a hash of its code), and guarded, so
+that whatever a plugin raises reaches the user as one line naming the plugin, its entry point and
+the exception as raised, never relabelled and never a traceback (SMSPACE_TRACEBACK=1 prints the
+plugin's own traceback above that line)."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import importlib.util
+from collections.abc import Iterator
+from dataclasses import dataclass
+from functools import cache
+from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
+from typing import Any
+
+from smspace.common.errors import SmspaceError, one_line
+
+
+class PluginError(SmspaceError):
+    """A plugin's own code raised, or broke the contract smspace holds it to."""
+
+
+@dataclass(frozen=True)
+class Plugin:
+    """What a registered name resolved to: recorded in manifests and run configs, so that a changed
+    plugin is seen as changed (its version or code hash differ)."""
+
+    kind: str  # "setup" or "model"
+    name: str
+    entry_point: str  # module:attribute
+    distribution: str
+    version: str
+    code_sha256: str  # over the .py files of the entry point's top-level package
+
+    @property
+    def label(self) -> str:
+        return f"{self.kind} {self.name!r} ({self.entry_point})"
+
+    def record(self) -> dict[str, str]:
+        return {
+            "entry_point": self.entry_point,
+            "distribution": self.distribution,
+            "version": self.version,
+            "code_sha256": self.code_sha256,
+        }
+
+
+@cache
+def registered(group: str) -> dict[str, EntryPoint]:
+    """The entry points of a group by name (nothing loaded)."""
+    return {ep.name: ep for ep in entry_points(group=group)}
+
+
+def describe(kind: str, ep: EntryPoint) -> Plugin:
+    dist = getattr(ep, "dist", None)
+    return Plugin(
+        kind,
+        ep.name,
+        ep.value,
+        dist.name if dist is not None else "unknown",
+        dist.version if dist is not None else "unknown",
+        code_hash(ep.module),
+    )
+
+
+def code_hash(module: str) -> str:
+    """sha256 (16 hex digits) of the source of `module`'s top-level package: every .py file under
+    it, by relative path. Found without importing it."""
+    top = module.split(".")[0]
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
+        spec = None
+    if spec is None:
+        return "unknown"
+    if spec.submodule_search_locations:
+        roots = [Path(p) for p in spec.submodule_search_locations]
+        files = sorted((f.relative_to(root).as_posix(), f) for root in roots for f in root.rglob("*.py"))
+    elif spec.origin and Path(spec.origin).is_file():
+        files = [(Path(spec.origin).name, Path(spec.origin))]
+    else:
+        return "unknown"
+    digest = hashlib.sha256()
+    for name, path in files:
+        digest.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
+
+
+def load(kind: str, ep: EntryPoint) -> tuple[Any, Plugin]:
+    """The object an entry point names, and the plugin's record. Importing a plugin runs its code:
+    whatever that raises (SystemExit included) is one line."""
+    plugin = describe(kind, ep)
+    with guarded(plugin, "being imported"):
+        return ep.load(), plugin
+
+
+@contextlib.contextmanager
+def guarded(plugin: Plugin | None, what: str) -> Iterator[None]:
+    """Run a plugin's code: any exception it raises becomes one line that names the plugin, what it
+    was doing and the exception as raised. Code of smspace itself (plugin None) is not wrapped."""
+    if plugin is None:
+        yield
+        return
+    try:
+        yield
+    except SmspaceError:
+        raise
+    except (Exception, SystemExit) as e:
+        raise PluginError(f"{plugin.label} raised {what}: {one_line(e, with_type=True)}") from e
+
+
+def changes(was: dict[str, Any], now: dict[str, Any]) -> str:
+    """What differs between two records, as "key old -> new, ..." (a plugin updated, say)."""
+    keys = sorted(k for k in was.keys() | now.keys() if was.get(k) != now.get(k))
+    return ", ".join(f"{k} {was.get(k)} -> {now.get(k)}" for k in keys)

@@ -1,0 +1,141 @@
+"""Setups and models that break smspace's plugin contract, one way each (and one sound setup,
+`tiny`, to train the bad models on). Not installed: tests/test_plugin_contract.py puts this folder,
+with its dist-info, on sys.path (and PYTHONPATH, for spawned workers)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from smspace.datagen.setups.base import Setup
+
+CELLS = 16
+SENSORS = 5
+
+
+class TinyWorld:
+    """A sensor on a ring of CELLS cells, moved by two motors; 5 sensor values per cell."""
+
+    n_motor = 2
+    sensor_shape = (SENSORS,)
+    sensor_dtype = np.dtype(np.float32)
+    static_shift = np.zeros(2)
+
+    def __init__(self, seed: int):
+        rng = np.random.default_rng(seed)
+        self.table = rng.uniform(0, 1, (CELLS, SENSORS)).astype(np.float32)
+        u = np.array([(a, b) for a in np.linspace(0, 1, 5) for b in np.linspace(0, 1, 5)])
+        self.motors = 2 * u - 1
+        self.positions = np.stack([np.rint(8 * u.mean(axis=1)), np.zeros(len(u))], axis=1)
+        self.sensed = 0
+
+    def sample_motors(self, rng, n):
+        idx = rng.integers(0, len(self.motors), n)
+        return self.motors[idx], self.positions[idx]
+
+    def sample_shifts(self, rng, n):
+        return np.stack([rng.integers(-4, 4, n), np.zeros(n)], axis=1).astype(np.float64)
+
+    def sense(self, p, shift):
+        self.sensed += len(p)
+        return self.table[np.mod(np.rint(p[:, 0] + shift[:, 0]).astype(np.int64), CELLS)]
+
+    def regular_sampling(self):
+        return self.motors, self.positions
+
+
+class NanWorld(TinyWorld):
+    def sense(self, p, shift):
+        s = super().sense(p, shift).copy()
+        s[:, 0] = np.nan
+        return s
+
+
+class LateNanWorld(TinyWorld):
+    """Sound for its first 2000 sensations (the probe batch among them), NaN after."""
+
+    def sense(self, p, shift):
+        s = super().sense(p, shift).copy()
+        if self.sensed > 2000:
+            s[-1, 2] = np.nan
+        return s
+
+
+class ShortSenseWorld(TinyWorld):
+    def sense(self, p, shift):
+        return super().sense(p, shift)[:, :4]
+
+
+class WideMotorWorld(TinyWorld):
+    def sample_motors(self, rng, n):
+        m, p = super().sample_motors(rng, n)
+        return 2 * m, p
+
+
+def _broken_build(seed: int):
+    raise ValueError(f"room {seed} has no floor")
+
+
+def _setup(name: str, build) -> Setup:
+    return Setup(name, n_motor=2, description=f"{name} (tests/plugins)", build=build, encoder_layers=(8,),
+                 shift_bound=4.0, default_transitions=4000)  # fmt: skip
+
+
+TINY = _setup("tiny", TinyWorld)
+NAN_WORLD = _setup("nanworld", NanWorld)
+LATE_NAN = _setup("latenan", LateNanWorld)
+SHORT_SENSE = _setup("shortsense", ShortSenseWorld)
+WIDE_MOTORS = _setup("widemotors", WideMotorWorld)
+BROKEN_BUILD = _setup("brokenbuild", _broken_build)
+
+
+class SoundNet(nn.Module):
+    def __init__(self, n_motor, n_sensor, n_h, encoder_layers, predictor_layers):
+        super().__init__()
+        self.encoder = nn.Linear(n_motor, n_h)
+        self.predictor = nn.Linear(2 * n_h + n_sensor, n_sensor)
+
+    def encode(self, m):
+        return self.encoder(m)
+
+    def forward(self, m_t, s_t, m_t1):
+        return self.predictor(torch.cat([self.encode(m_t), self.encode(m_t1), s_t], dim=-1))
+
+
+class BroadcastNet(SoundNet):
+    """Predicts one value per transition: (B, 1) broadcasts against (B, N_s) targets."""
+
+    def forward(self, m_t, s_t, m_t1):
+        return super().forward(m_t, s_t, m_t1)[:, :1]
+
+
+class WideHNet(SoundNet):
+    """h of N_h + 2 columns."""
+
+    def __init__(self, n_motor, n_sensor, n_h, encoder_layers, predictor_layers):
+        super().__init__(n_motor, n_sensor, n_h + 2, encoder_layers, predictor_layers)
+
+
+class WideOutNet(SoundNet):
+    """Predicts N_s + 1 values."""
+
+    def __init__(self, n_motor, n_sensor, n_h, encoder_layers, predictor_layers):
+        super().__init__(n_motor, n_sensor + 1, n_h, encoder_layers, predictor_layers)
+
+    def forward(self, m_t, s_t, m_t1):
+        h = torch.cat([self.encode(m_t), self.encode(m_t1), s_t, s_t[:, :1]], dim=-1)
+        return self.predictor(h)
+
+
+class RefusingNet(SoundNet):
+    def __init__(self, n_motor, n_sensor, n_h, encoder_layers, predictor_layers):
+        raise ValueError("RefusingNet needs at least 4 motors")
+
+
+class TypedNet(SoundNet):
+    """Takes a width, and uses it as a size: a string is a TypeError inside the constructor."""
+
+    def __init__(self, n_motor, n_sensor, n_h, encoder_layers, predictor_layers, width: int = 8):
+        super().__init__(n_motor, n_sensor, n_h, encoder_layers, predictor_layers)
+        self.extra = nn.Parameter(torch.empty(width))

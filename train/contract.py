@@ -1,0 +1,68 @@
+"""The contract every model is held to (docs/API.md, "Plugins"), checked once on a probe batch
+before a run folder is written: `forward(m_t, s_t, m_t1)` gives exactly (B, N_s) float32 for
+(B, N_s) targets (a (B, 1) output would broadcast in the loss and train silently), `encode(m)`
+exactly (B, N_h), both finite. Broken, it is one line naming the model and what it gave.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+
+from smspace.common import plugins
+from smspace.common.errors import SmspaceError
+from smspace.train.model import build_model, model_label, model_plugin, prediction_loss
+
+
+def probe_batch_size(*sizes: int) -> int:
+    """A batch whose size equals no other dimension, so that a swapped or broadcast axis shows."""
+    return next(b for b in (7, 11, 13, 17, 19, 23) if b not in sizes)
+
+
+def check_model(
+    name: str,
+    n_motor: int,
+    n_sensor: int,
+    n_h: int,
+    encoder_layers: Sequence[int],
+    predictor_layers: Sequence[int],
+    params: dict[str, Any] | None = None,
+) -> None:
+    """Build the model and run it once, forward and backward, on a probe batch: one line if it
+    breaks the contract. Leaves torch's random state as it found it."""
+    plugin, label = model_plugin(name), model_label(name)
+    batch = probe_batch_size(n_motor, n_sensor, n_h)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = build_model(name, n_motor, n_sensor, n_h, encoder_layers, predictor_layers, params)
+        generator = torch.Generator().manual_seed(0)
+        m_t = torch.rand(batch, n_motor, generator=generator) * 2 - 1
+        m_t1 = torch.rand(batch, n_motor, generator=generator) * 2 - 1
+        s_t = torch.rand(batch, n_sensor, generator=generator)
+        with plugins.guarded(plugin, "in forward() on a probe batch"):
+            pred = model(m_t, s_t, m_t1)
+        _expect(label, "forward(m_t, s_t, m_t1)", pred, (batch, n_sensor), f"(B, N_s) = ({batch}, {n_sensor})")
+        with plugins.guarded(plugin, "in encode() on a probe batch"):
+            h = model.encode(m_t)
+        _expect(label, "encode(m)", h, (batch, n_h), f"(B, N_h) = ({batch}, {n_h})")
+        if not any(p.requires_grad for p in model.parameters()):
+            raise SmspaceError(f"{label} has no trainable parameters")
+        with plugins.guarded(plugin, "in backward() on a probe batch"):
+            prediction_loss(pred, s_t).backward()
+
+
+def _expect(label: str, call: str, out: Any, shape: tuple[int, ...], spelled: str) -> None:
+    if not isinstance(out, torch.Tensor):
+        raise SmspaceError(f"{label}: {call} returned a {type(out).__name__}, not a tensor")
+    if tuple(out.shape) != shape:
+        raise SmspaceError(
+            f"{label}: {call} gave shape {tuple(out.shape)} on a probe batch of {shape[0]}; "
+            f"it must give exactly {spelled} (no broadcasting)"
+        )
+    if out.dtype != torch.float32:
+        raise SmspaceError(f"{label}: {call} gave {out.dtype} for float32 inputs; it must give float32")
+    bad = int((~torch.isfinite(out)).sum())
+    if bad:
+        raise SmspaceError(f"{label}: {call} gave {bad} non-finite value(s) (NaN or inf) on a probe batch")
