@@ -35,14 +35,18 @@ def main() -> None:
             sys.exit(f"exit_aborts: training the probe run failed: {trained.stderr.strip()[-300:]}")
         commands = {
             "python -c 'smspace.open_run(R).metrics()'": [
-                sys.executable, "-c", f"import smspace; smspace.open_run({str(run)!r}).metrics()"
+                sys.executable,
+                "-c",
+                f"import smspace; smspace.open_run({str(run)!r}).metrics()",
             ],
             "smtrain ls --runs R/..": [str(BIN / "smtrain"), "ls", "--runs", str(run.parent)],
         }
         report = {}
         for name, cmd in commands.items():
             with ThreadPoolExecutor(args.parallel) as pool:
-                codes = list(pool.map(lambda _: subprocess.run(cmd, capture_output=True).returncode, range(args.runs)))
+                codes = list(
+                    pool.map(lambda _, cmd=cmd: subprocess.run(cmd, capture_output=True).returncode, range(args.runs))
+                )
             counts = collections.Counter(codes)
             report[name] = {"runs": args.runs, "aborts": counts.get(-6, 0) + counts.get(134, 0),
                             "exit_codes": {str(k): v for k, v in sorted(counts.items())}}  # fmt: skip

@@ -30,6 +30,7 @@ from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, 
 from smspace.study.sweep import SweepPlan, check_terms, ensembles, prepare, run_ensembles
 from smspace.train.config import TrainConfig, parameter_count
 from smspace.train.run_dir import CONFIG, RunDir
+from smspace.train.terms import terms
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,26 @@ def combinations(study: StudyFile, out: Store) -> list[Combination]:
             study.given(values),
         )
         found.append(Combination(values, out.child(name) if name else out, plan))
+    _refuse_the_same_runs_twice(found)
     return found
+
+
+def _refuse_the_same_runs_twice(combos: list[Combination]) -> None:
+    """Two combinations whose templates resolve to the same terms (precision "auto" decided as the
+    "fp32" beside it, say) would train the same runs twice, which a report then refuses to pool."""
+    seen: dict[str, Combination] = {}
+    for combo in combos:
+        key = json.dumps([combo.plan.setup, terms(combo.plan.template)], sort_keys=True, default=str)
+        if key in seen:
+            first = seen[key]
+            asked = first.values.get("precision"), combo.values.get("precision")
+            resolved = combo.plan.template.precision
+            why = f" (precision {asked[0]} and {asked[1]} both train in {resolved} here)" if len(set(asked)) > 1 else ""
+            raise SmspaceError(
+                f"grid combinations {folder_name(first.values)} and {folder_name(combo.values)} train the same "
+                f"runs{why}; remove one"
+            )
+        seen[key] = combo
 
 
 def run_study(

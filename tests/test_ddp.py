@@ -141,3 +141,26 @@ def test_a_rank_killed_outright_is_named_in_one_line_and_in_the_status(tmp_path,
     assert lines[0].endswith(f"smtrain fit --resume {out} --nproc 2")
     status = RunDir.open(out).status()
     assert status["state"] == "failed" and status["message"] == lines[0].removeprefix("smtrain: error: ")
+
+
+@pytest.mark.parametrize(
+    "raised, kind, needle",
+    [
+        (RuntimeError("[gloo/transport/tcp/pair.cc:534] Connection closed by peer [127.0.0.1]:4032"), "PeerLost",
+         "rank 1 lost another rank of this run"),
+        (RuntimeError("DefaultCPUAllocator: not enough memory: you tried to allocate 85899345920 bytes."),
+         "RankFailed", "rank 1 failed: RuntimeError: DefaultCPUAllocator: not enough memory"),
+        (RuntimeError("The size of tensor a (5) must match the size of tensor b (4) at non-singleton dimension 1"),
+         "RankFailed", "rank 1 failed: RuntimeError: The size of tensor a (5) must match"),
+    ],
+)  # fmt: skip
+def test_a_rank_s_own_error_is_its_cause_not_a_lost_peer(raised, kind, needle):
+    """peer_errors called every RuntimeError of a rank a lost peer: an out-of-memory or a model's
+    shape error became "rank N exited with 3" and its cause was lost."""
+    from smspace.train.distributed import Ranks, peer_errors
+
+    with pytest.raises(Exception) as caught:
+        with peer_errors(Ranks(1, 2)):
+            raise raised
+    assert type(caught.value).__name__ == kind and needle in str(caught.value), caught.value
+    assert "\n" not in str(caught.value)

@@ -439,7 +439,8 @@ def test_a_killed_resource_tracker_leaves_a_sweep_quiet(tmp_path):
     import psutil
 
     proc, out, _ = _sweep_with_checkpoints(tmp_path, steps=300)
-    (tracker,) = [p for p in psutil.Process(proc.pid).children() if "resource_tracker import main" in " ".join(p.cmdline())]
+    children = psutil.Process(proc.pid).children()
+    (tracker,) = [p for p in children if "resource_tracker import main" in " ".join(p.cmdline())]
     os.kill(tracker.pid, signal.SIGKILL)
     _, stderr = proc.communicate(timeout=300)
     assert proc.returncode == 0, stderr
@@ -453,7 +454,7 @@ def test_an_interrupted_sweep_says_interrupted_as_a_lone_fit_does(tmp_path):
     now each says "interrupted", as a lone fit does, and the same command resumes them."""
     import signal
 
-    proc, out, args = _sweep_with_checkpoints(tmp_path, steps=3000)
+    proc, out, _ = _sweep_with_checkpoints(tmp_path, steps=3000)
     proc.send_signal(signal.SIGTERM)
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr

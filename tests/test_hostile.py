@@ -40,12 +40,13 @@ def flip(path: Path, rng: np.random.Generator) -> int:
 
 
 def assert_one_line_naming(result, name: str, prog: str) -> None:
+    """The reader refused the damaged file (a reader that succeeded on it fails this), in one line."""
     assert "Traceback" not in result.output, result.output
     if result.exception is not None and not isinstance(result.exception, SystemExit):
         raise AssertionError(f"escaped: {result.exception!r}")
-    if result.exit_code != 0:
-        lines = result.output.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith(f"{prog}: error: ") and name in lines[0], result.output
+    assert result.exit_code != 0, f"read a damaged {name} without a word: {result.output}"
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"{prog}: error: ") and name in lines[0], result.output
 
 
 @pytest.mark.parametrize("dataset", ["grid-seed0-MEM", "arm-seed0-MME"])

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import run_cmd
+from .conftest import SAMPLES, run_cmd
 
 PLUGINS = Path(__file__).parent / "plugins"
 
@@ -129,9 +129,9 @@ def test_a_nan_drawn_late_is_refused_before_its_part_is_committed(tmp_path):
     assert "written" not in result.stdout
     folder = lake / "latenan-seed0-MM"
     assert not (folder / "manifest.json").exists()
-    for shard in folder.glob("shard-*.mcap"):  # what was stored holds no NaN
-        assert run_cmd("smgen", "validate", "--lake", lake, "latenan-seed0-MM").returncode != 0
-        break
+    stored = sorted(p.name for p in folder.glob("shard-*.mcap"))
+    assert stored == ["shard-00000.mcap"], stored  # the part drawing the NaN (shard 1) was never stored
+    assert "shard-00001.mcap" in line
     listed = run_cmd("smgen", "ls", "--lake", lake)
     assert listed.returncode == 0 and "corrupt" not in listed.stdout + listed.stderr, listed
 
@@ -162,3 +162,37 @@ def test_plugins_are_recorded_and_a_changed_plugin_is_a_changed_config(tmp_path,
     resumed = run_cmd("smtrain", "fit", "--resume", out, "--steps", 60, env=env)
     line = one_error_line(resumed)
     assert "model 'typed' changed since" in line and "code_sha256" in line, line
+
+
+def test_a_grid_over_precisions_that_resolve_alike_is_refused_before_anything_is_written(tmp_path):
+    """`precision = ["fp32", "auto"]` where auto keeps fp32: duplicate runs the report later refused."""
+    from smspace.train.precision import resolve
+
+    decided = resolve("auto", "cpu")[0]
+    study = tmp_path / "study.toml"
+    study.write_text(f'[study]\nsetup = "grid"\nmodes = ["MM"]\nworlds = 1\ntransitions = 3000\n[train]\nsteps = 20\n'
+                     f'eval_every = 10\n[grid]\nprecision = ["{decided}", "auto"]\n')  # fmt: skip
+    for dry in (["--dry-run"], []):
+        result = run_cmd("smtrain", "sweep", study, "--lake", tmp_path / "lake", "--out", tmp_path / "runs", *dry)
+        line = one_error_line(result)
+        assert f"precision={decided} and precision=auto train the same runs" in line, line
+        assert f"both train in {decided} here" in line
+        assert not (tmp_path / "runs").exists() and not (tmp_path / "lake").exists()
+
+
+def test_what_was_asked_and_what_was_done_are_recorded(tmp_path):
+    """--precision auto records what it was decided as and that auto was asked; --compile that
+    fell back to eager records the fallback in the session, and says it in one whole sentence."""
+    out = tmp_path / "run"
+    args = ["fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", out, "--steps", 20, "--eval-every", 10]
+    env = {"CXX": "/bin/false", "TORCHINDUCTOR_CACHE_DIR": str(tmp_path / "cache")}
+    result = run_cmd("smtrain", *args, "--precision", "auto", "--compile", env=env, timeout=600)
+    assert result.returncode == 0, result.stderr
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["precision_asked"] == "auto" and cfg["precision"] in ("fp32", "bf16")
+    (session,) = cfg["sessions"]
+    assert session["compile"].startswith("eager: torch.compile does not work here (") and cfg["compile"] is True
+    (line,) = [ln for ln in result.stderr.splitlines() if ln.startswith("--compile:")]
+    assert line.endswith("; training eagerly (recorded in config.json)"), line
+    info = run_cmd("smtrain", "info", out)
+    assert "eager: torch.compile does not work here" in info.stdout, info.stdout

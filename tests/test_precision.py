@@ -57,7 +57,7 @@ def test_compile_reports_its_time_and_a_broken_compiler_falls_back_in_one_line(t
 
     works = run_cmd("smtrain", "fit", *args, "--out", tmp_path / "compiled", env=env, timeout=600)
     assert works.returncode == 0, works.stderr
-    assert "--compile:" not in works.stderr and "compiled in " in works.stderr.splitlines()[-3]
+    assert "--compile:" not in works.stderr and any("compiled in " in ln for ln in works.stderr.splitlines())
     compiled, eager = RunDir.open(tmp_path / "compiled").metrics(), RunDir.open(tmp_path / "broken").metrics()
     for a, b in zip(compiled, eager, strict=True):  # fused kernels sum in another order: the same run, to rounding
         assert a["eval_loss"] == pytest.approx(b["eval_loss"], rel=1e-3), (a, b)

@@ -396,6 +396,7 @@ def _session_line(session: dict) -> str:
         + f", torch {session.get('torch')}, Python {session.get('python')}, {session.get('cpu')} "
         + f"[{' '.join(session.get('cpu_vector_extensions', []))}; torch uses {session.get('torch_cpu_capability')}]"
         + f", device {session.get('device')}, {session.get('threads')} thread(s), host {session.get('host')}"
+        + (f", compile: {session['compile']}" if session.get("compile") else "")
     )  # fmt: skip
 
 

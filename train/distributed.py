@@ -48,10 +48,29 @@ class PeerLost(SmspaceError):
     exit_code = 1
 
 
+class RankFailed(SmspaceError):
+    """A rank's own error (out of memory, a model's bug): its cause, in one line."""
+
+    exit_code = 1
+
+
+# what gloo, nccl and the store say when the other end of a collective is gone
+PEER_GONE = ("connection closed by peer", "connection reset by peer", "broken pipe", "connection refused",
+             "timed out", "timeout", "socket", "read error", "write error", "process group", "peer")  # fmt: skip
+
+
+def lost_a_peer(e: BaseException) -> bool:
+    """Whether an error of a collective says another rank is gone, rather than this rank failed."""
+    if isinstance(e, dist.DistError):  # DistNetworkError, DistBackendError, DistStoreError
+        return True
+    return any(words in str(e).lower() for words in PEER_GONE)
+
+
 @contextmanager
 def peer_errors(ranks: Ranks) -> Iterator[None]:
     """A collective that fails because another rank is gone (gloo: connection closed or reset)
-    becomes one line, instead of a backend traceback stored in the run's status."""
+    becomes PeerLost; any other error of this rank (out of memory, a plugin model's shape error)
+    is one line with its cause, never called a lost peer. Either way, not a backend traceback."""
     try:
         yield
     except SmspaceError:
@@ -60,6 +79,10 @@ def peer_errors(ranks: Ranks) -> Iterator[None]:
         if not ranks.distributed:
             raise
         first = one_line(e, limit=160)
+        if not lost_a_peer(e):
+            raise RankFailed(
+                f"rank {ranks.rank} failed: {one_line(e, limit=300, with_type=True)}; the run keeps its last checkpoint"
+            ) from e
         raise PeerLost(
             f"rank {ranks.rank} lost another rank of this run ({first}); the run keeps its last checkpoint"
         ) from None

@@ -396,7 +396,7 @@ def made_with(runs: list[RunData]) -> list[str]:
     lines = []
     for key, label in (("smspace", "smspace"), ("git_commit", "git commit"), ("torch", "torch"),
                        ("python", "Python"), ("cpu", "CPU"), ("torch_cpu_capability", "torch CPU kernels"),
-                       ("device", "device")):  # fmt: skip
+                       ("device", "device"), ("compile", "--compile")):  # fmt: skip
         values = sorted({str(s.get(key)) for s in sessions if s.get(key) is not None})
         if values:
             lines.append(f"- {label}: {', '.join(values)}")

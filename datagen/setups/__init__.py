@@ -66,7 +66,7 @@ __all__ = [
     "draw_transitions",
     "get_setup",
     "parse_modes",
-    "setup_names",
     "setup_label",
+    "setup_names",
     "setup_plugin",
 ]

@@ -53,11 +53,11 @@ class NanWorld(TinyWorld):
 
 
 class LateNanWorld(TinyWorld):
-    """Sound for its first 2000 sensations (the probe batch among them), NaN after."""
+    """Sound for its first 6000 sensations (the probe batch and a first part of 2000 transitions), NaN after."""
 
     def sense(self, p, shift):
         s = super().sense(p, shift).copy()
-        if self.sensed > 2000:
+        if self.sensed > 6000:
             s[-1, 2] = np.nan
         return s
 
