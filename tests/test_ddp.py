@@ -159,8 +159,7 @@ def test_a_rank_s_own_error_is_its_cause_not_a_lost_peer(raised, kind, needle):
     shape error became "rank N exited with 3" and its cause was lost."""
     from smspace.train.distributed import Ranks, peer_errors
 
-    with pytest.raises(Exception) as caught:
-        with peer_errors(Ranks(1, 2)):
-            raise raised
+    with pytest.raises(Exception) as caught, peer_errors(Ranks(1, 2)):
+        raise raised
     assert type(caught.value).__name__ == kind and needle in str(caught.value), caught.value
     assert "\n" not in str(caught.value)
