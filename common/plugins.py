@@ -112,6 +112,11 @@ def guarded(plugin: Plugin | None, what: str) -> Iterator[None]:
         raise PluginError(f"{plugin.label} raised {what}: {one_line(e, with_type=True)}") from e
 
 
+def label(kind: str, name: str, plugin: Plugin | None) -> str:
+    """How messages name a setup or model: a plugin's with its entry point."""
+    return plugin.label if plugin is not None else f"{kind} {name!r}"
+
+
 def changes(was: dict[str, Any], now: dict[str, Any]) -> str:
     """What differs between two records, as "key old -> new, ..." (a plugin updated, say)."""
     keys = sorted(k for k in was.keys() | now.keys() if was.get(k) != now.get(k))

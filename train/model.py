@@ -112,9 +112,7 @@ def model_plugin(name: str) -> Plugin | None:
 
 
 def model_label(name: str) -> str:
-    """How messages name a model: a plugin's with its entry point."""
-    plugin = model_plugin(name)
-    return plugin.label if plugin is not None else f"model {name!r}"
+    return plugins.label("model", name, model_plugin(name))
 
 
 def plugin_record(name: str) -> dict[str, str]:

@@ -51,9 +51,7 @@ def setup_plugin(name: str) -> Plugin | None:
 
 
 def setup_label(name: str) -> str:
-    """How messages name a setup: a plugin's with its entry point."""
-    plugin = setup_plugin(name)
-    return plugin.label if plugin is not None else f"setup {name!r}"
+    return plugins.label("setup", name, setup_plugin(name))
 
 
 __all__ = [
