@@ -71,6 +71,10 @@ def on_interrupt(message: str) -> Iterator[None]:
         raise Interrupted(message) from None
 
 
+MAX_WORKERS = 1024  # processes (or Ray CPUs) one command may ask for
+MAX_ENSEMBLE = 10_000  # runs in one vectorised model
+
+
 def default_workers() -> int:
     """The cores this process may use: the default number of generator processes."""
     try:

@@ -5,8 +5,10 @@ killed command and needs no cleanup."""
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
+import stat
 import sys
 from pathlib import Path
 from typing import IO
@@ -24,13 +26,29 @@ class HeldLock:
         self._fh.close()
 
 
+def _open_lock_file(path: Path) -> IO[str]:
+    """The lock file, opened without following a link (a `.lock` made a symlink to another file
+    had that file truncated and a pid written into it) and only if it is a plain file (a FIFO
+    would block the open: O_NONBLOCK)."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o644)
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise SmspaceError(f"cannot lock {path}: it is not a plain file; remove it")
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "r+")  # kept open: closing it releases the lock
+
+
 def hold_lock(path: Path, busy: str, wait: bool) -> HeldLock:
     """Lock `path` (created if needed). If another process holds it: wait for it (`wait`), saying so
     once on stderr, or refuse with `busy` and the holder's pid."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fh = open(path, "a+")  # noqa: SIM115 - kept open: closing it releases the lock
+        fh = _open_lock_file(path)
     except OSError as e:
+        if e.errno == errno.ELOOP:  # O_NOFOLLOW met a link: writing through it would truncate its target
+            raise SmspaceError(
+                f"cannot lock {path}: it is a symbolic link; remove it (locks are never followed)"
+            ) from e
         raise SmspaceError(f"cannot lock {path}: {e.strerror or e}") from e
     try:
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)

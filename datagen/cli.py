@@ -10,6 +10,7 @@ import click
 
 from smspace.common.cli import (
     LAKE_OPTION,
+    MAX_WORKERS,
     OneLineErrors,
     default_workers,
     display_name,
@@ -52,7 +53,7 @@ def main() -> None:
 @LAKE_OPTION
 @click.option(
     "--workers",
-    type=click.IntRange(min=1),
+    type=click.IntRange(1, MAX_WORKERS),
     default=None,
     help="Worker processes [default: this machine's cores; bytes do not depend on it].",
 )

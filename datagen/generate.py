@@ -19,7 +19,7 @@ import numpy as np
 
 from smspace import schemas
 from smspace.common import plugins
-from smspace.common.errors import SmspaceError
+from smspace.common.errors import SmspaceError, one_line
 from smspace.datagen.executors import ExecutorOptions, open_executor
 from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
 from smspace.datagen.setups import get_setup, setup_plugin
@@ -70,16 +70,30 @@ class Plan:
     complete: bool
 
 
+READ_ATTEMPTS = 3  # a record that does not parse is read again: a garbled or cut transfer is not a config
+
+
 def _recorded(folder: Store) -> tuple[str, dict] | None:
-    """(config hash, config) of the dataset's manifest or unfinished generation; None if neither."""
+    """(config hash, config) of the dataset's manifest or unfinished generation; None if neither.
+    Only a record read whole and parsed is compared: one that does not parse is read again, and
+    if it never does it is named as unreadable, never taken for another config (advice to pass
+    --overwrite would delete a sound dataset after one garbled transfer)."""
     for name in (MANIFEST, GENERATION):
-        try:
-            raw = json.loads(folder.read_bytes(name))
-            return raw["config_hash"], raw["config"] if isinstance(raw.get("config"), dict) else {}
-        except (FileNotFoundError, NotADirectoryError):
-            continue
-        except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError, SmspaceError):
-            return "unreadable", {}
+        problem = ""
+        for _ in range(READ_ATTEMPTS):
+            try:
+                raw = json.loads(folder.read_bytes(name))
+                return raw["config_hash"], raw["config"] if isinstance(raw.get("config"), dict) else {}
+            except (FileNotFoundError, NotADirectoryError):
+                break
+            except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError) as e:
+                problem = one_line(e, with_type=True)
+        if problem:
+            raise SmspaceError(
+                f"{folder}/{name} could not be read whole in {READ_ATTEMPTS} attempts ({problem}); "
+                "if the storage answers soundly, the file is damaged: `smgen validate` names it, and "
+                "--overwrite draws the dataset again"
+            )
     return None
 
 

@@ -184,9 +184,22 @@ class Store(ABC):
 class LocalStore(Store):
     """A folder on this machine's filesystem: writes go through a temporary name and a rename."""
 
-    def __init__(self, path: Path | str):
+    def __init__(self, path: Path | str, root: Path | None = None):
         self.path = Path(path)
         self.url = str(self.path)
+        self._root = root  # the folder the user named; its sub-folders are smspace's own
+
+    def _refuse_links(self) -> None:
+        """Writes never leave the tree the user named: a sub-folder of it (a run folder of a study,
+        a run's tensorboard/ or embeddings/, a dataset folder) that is a symbolic link is refused.
+        The folder the user named may itself be a link: that was their choice."""
+        if self._root is None:
+            return
+        at = self._root
+        for part in self.path.relative_to(self._root).parts:
+            at = at / part
+            if at.is_symlink():
+                raise SmspaceError(f"{at} is a symbolic link; smspace writes only inside the folders it made")
 
     @property
     def name(self) -> str:
@@ -203,14 +216,16 @@ class LocalStore(Store):
         return [p.name for p in self.path.iterdir()] if self.path.is_dir() else []
 
     def hold(self, name: str, busy: str) -> HeldLock:
+        self._refuse_links()
         return hold_lock(self.path / name, busy, wait=False)
 
     def remove_folder(self) -> None:
+        self._refuse_links()
         shutil.rmtree(self.path, ignore_errors=True)
 
     def child(self, name: str) -> LocalStore:
         check_name(self.url, name)
-        return LocalStore(self.path / name)
+        return LocalStore(self.path / name, root=self._root or self.path)
 
     def file(self, name: str) -> Path:
         """A regular file directly inside this folder, never a link, device or FIFO."""
@@ -228,6 +243,7 @@ class LocalStore(Store):
         return self.path.exists() and not self.path.is_dir()
 
     def make(self) -> None:
+        self._refuse_links()
         if self.is_file():
             raise SmspaceError(f"{self.path} exists and is not a folder")
         try:
@@ -255,14 +271,17 @@ class LocalStore(Store):
 
     def put(self, name: str, data: bytes) -> None:
         check_name(self.url, name)
+        self._refuse_links()
         write_atomic(self.path / name, data)
 
     def create(self, name: str, data: bytes) -> None:
         check_name(self.url, name)
+        self._refuse_links()
         create_exclusive(self.path / name, data)
 
     def delete(self, name: str) -> None:
         check_name(self.url, name)
+        self._refuse_links()
         (self.path / name).unlink(missing_ok=True)
 
     def fingerprints(self, pattern: str) -> dict[str, str]:
@@ -274,6 +293,7 @@ class LocalStore(Store):
         return out
 
     def lock(self, name: str, busy: str, wait: bool) -> contextlib.AbstractContextManager:
+        self._refuse_links()
         return _held(self.path / name, busy, wait)
 
     def remove_partials(self) -> None:
@@ -334,6 +354,7 @@ class RemoteStore(Store):
             return self.fs.isfile(self.root)
 
     def make(self) -> None:
+        self._refuse_links()
         if self.is_file():
             raise SmspaceError(f"{self.url} exists and is not a folder")
 

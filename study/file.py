@@ -25,13 +25,15 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import re
 import tomllib
 from dataclasses import MISSING, Field, asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from smspace.common.cli import MAX_ENSEMBLE, MAX_WORKERS
 from smspace.common.errors import SmspaceError
-from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.lake.manifest import MAX_TRANSITIONS, MAX_WORLDS, SEED_MAX
 from smspace.lake.transitions import MODES
 from smspace.train.config import TrainConfig, flag_fields
 from smspace.train.terms import PER_RUN
@@ -39,7 +41,10 @@ from smspace.train.terms import PER_RUN
 RECORD = "study-file.json"  # the resolved study, in its output folder
 SOURCE = "study-file.toml"  # the file as it was given
 SECTIONS = ("study", "train", "grid", "run")
-RUN_KEYS = {"workers": 1, "gen_workers": 1, "max_ensemble": 1, "executor": None}
+# [run] keys and their bounds: the same as the flags' (a million workers started a process per run)
+RUN_KEYS = {"workers": (1, MAX_WORKERS), "gen_workers": (1, MAX_WORKERS), "max_ensemble": (1, MAX_ENSEMBLE),
+            "executor": None}  # fmt: skip
+MAX_COMBINATIONS = 1000  # sub-studies in one file: each is a folder, a plan and a dry-run line
 EXECUTORS = ("local", "ray")
 NOT_TRAINABLE = ("seed",)  # a run's seed is its world's
 SETUP_KEY = "setup"  # the one [grid] key that is not a training field: a sub-study per setup
@@ -99,16 +104,25 @@ def _short(value: Any) -> str:
 
 def load_study(path: Path | str) -> StudyFile:
     """The study in a TOML file, checked; SmspaceError naming the file and key otherwise."""
+    return read_study(path)[0]
+
+
+def read_study(path: Path | str) -> tuple[StudyFile, bytes]:
+    """The study and the bytes it was parsed from, read once (a pipe, `<(cat study.toml)`, reads
+    empty the second time: the recorded copy was empty)."""
     path = Path(path)
     try:
-        raw = tomllib.loads(path.read_text())
+        source = path.read_bytes()
+        raw = tomllib.loads(source.decode())
     except FileNotFoundError:
         raise SmspaceError(f"no study file at {path}") from None
     except (OSError, UnicodeDecodeError) as e:
         raise SmspaceError(f"cannot read study file {path}: {e}") from None
     except tomllib.TOMLDecodeError as e:
         raise SmspaceError(f"{path} is not valid TOML: {e}") from None
-    return parse_study(raw, str(path), default_name=path.stem)
+    except RecursionError:  # thousands of nested arrays
+        raise SmspaceError(f"{path} nests its values too deeply to be a study file") from None
+    return parse_study(raw, str(path), default_name=path.stem), source
 
 
 def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") -> StudyFile:
@@ -137,16 +151,24 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
         setup = _string(study["setup"], bad, "study.setup")
         _check_setup(setup, bad, "study.setup")
     name = _string(study.get("name", default_name), bad, "study.name")
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}", name):  # it names a folder: runs/<name>
+        raise bad("study.name", f"{name!r} must be a plain folder name (letters, digits, '.', '_', '-'; no '/')")
     modes = _modes(study.get("modes", list(MODES)), bad)
     worlds = _integer(study.get("worlds", 1), bad, "study.worlds", 1, MAX_WORLDS)
     seed = _integer(study.get("seed", 0), bad, "study.seed", 0, SEED_MAX)
+    if seed + worlds - 1 > SEED_MAX:  # world seeds seed .. seed + worlds - 1 name datasets
+        raise bad("study.seed", f"seed {seed} + {worlds} worlds passes the largest seed {SEED_MAX}")
     transitions = study.get("transitions")
     if transitions is not None:
-        transitions = _integer(transitions, bad, "study.transitions", 1, None)
+        transitions = _integer(transitions, bad, "study.transitions", 1, MAX_TRANSITIONS)
 
     fields_by_name = {f.name: f for f in flag_fields() if f.name not in NOT_TRAINABLE}
     train = {k: _train_value(fields_by_name, k, v, bad, f"train.{k}") for k, v in raw.get("train", {}).items()}
     grid: dict[str, list[Any]] = {}
+    sizes = [len(v) if isinstance(v, list) else 1 for v in raw.get("grid", {}).values()]
+    if math.prod(sizes) > MAX_COMBINATIONS:  # before anything is built: 1000 x 1000 values took seconds
+        shown = " x ".join(map(str, sizes))
+        raise bad("grid", f"{shown} = {math.prod(sizes)} combinations; at most {MAX_COMBINATIONS}")
     for key, values in raw.get("grid", {}).items():
         if not isinstance(values, list) or not values:
             raise bad(f"grid.{key}", "must be a non-empty list of values")
@@ -259,7 +281,7 @@ def _run_section(section: dict[str, Any], bad) -> dict[str, Any]:
                 raise bad("run.executor", f"expected one of {', '.join(EXECUTORS)}, got {value!r}")
             run[key] = value
         else:
-            run[key] = _integer(value, bad, f"run.{key}", RUN_KEYS[key], None)
+            run[key] = _integer(value, bad, f"run.{key}", *RUN_KEYS[key])
     return run
 
 

@@ -19,14 +19,14 @@ import torch
 
 from smspace.common import plugins
 from smspace.common.cli import default_workers
-from smspace.common.errors import SmspaceError
+from smspace.common.errors import SmspaceError, one_line
 from smspace.common.progress import duration
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import draw_transitions, get_setup, setup_plugin
 from smspace.datagen.setups.contract import check_world
 from smspace.lake.manifest import GenConfig
 from smspace.lake.store import Store, open_store
-from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study
+from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study, read_study
 from smspace.study.sweep import SweepPlan, check_terms, ensembles, prepare, run_ensembles
 from smspace.train.config import TrainConfig, parameter_count
 from smspace.train.run_dir import CONFIG, RunDir
@@ -86,7 +86,7 @@ def run_study(
     notify: Callable[[str], None] = lambda line: None,
 ) -> list[RunDir]:
     """Run (or resume, or extend) a study file; arguments given here override its [run] section."""
-    study = load_study(path)
+    study, source = read_study(path)
     out = open_store(out if out is not None else f"runs/{study.name}")
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = gen_workers or study.run.get("gen_workers", workers)
@@ -100,7 +100,7 @@ def run_study(
         if change:
             notify(change)
     out.make()
-    out.put(SOURCE, Path(path).read_bytes())
+    out.put(SOURCE, source)
     out.put(RECORD, (json.dumps(study.to_dict(), indent=1) + "\n").encode())
     runs, chunks = [], []
     for combo, (template, _) in zip(combos, checked, strict=True):
@@ -124,14 +124,22 @@ def study_changes(study: StudyFile, out: Store, overwrite: bool) -> list[str]:
         return []
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise SmspaceError(f"{out.url}/{RECORD} is unreadable ({type(e).__name__}); pass --overwrite") from None
-    diff = changes(recorded, study.to_dict())
+    try:
+        diff = changes(recorded, study.to_dict())
+        before = None
+        if isinstance(recorded.get("grid"), dict) and all(isinstance(v, list) for v in recorded["grid"].values()):
+            before = StudyFile(**{k: recorded[k] for k in study.to_dict() if k in recorded})
+            before_names = [folder_name(c) for c in before.combinations()]
+    except (AttributeError, KeyError, TypeError, ValueError) as e:  # a record edited by hand
+        raise SmspaceError(
+            f"{out.url}/{RECORD} is unreadable ({one_line(e, with_type=True)}); pass --overwrite"
+        ) from None
     if not diff:
         return []
     lines = [f"the study in {out.url} changed since it last ran: {'; '.join(diff)}"]
-    before = StudyFile(**{k: recorded[k] for k in study.to_dict() if k in recorded}) if "grid" in recorded else None
     if before is not None:
         now = {folder_name(c) for c in study.combinations()}
-        gone = [folder_name(c) for c in before.combinations() if folder_name(c) not in now]
+        gone = [name for name in before_names if name not in now]
         if gone:
             lines.append(f"no longer in the study (their runs are kept, not trained): {', '.join(gone)}")
     return lines

@@ -15,19 +15,21 @@ from typing import Any
 
 import numpy as np
 
+from smspace.common import plugins
 from smspace.common.bounded import run_within
-from smspace.common.errors import SmspaceError
+from smspace.common.errors import SmspaceError, one_line
 from smspace.common.executors import WorkerDied, import_ray, open_executor
 from smspace.datagen.generate import generate
 from smspace.datagen.parts import world_for
-from smspace.datagen.setups import get_setup
+from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.catalog import check_lake
 from smspace.lake.manifest import load_manifest
 from smspace.lake.store import Store, open_store
 from smspace.study.monitor import StudyMonitor, monitored
-from smspace.train.config import TrainConfig
+from smspace.train.config import TrainConfig, available_memory, memory_needed
 from smspace.train.contract import check_model
 from smspace.train.ensemble import train_ensemble
+from smspace.train.loop import resolve_device
 from smspace.train.run_dir import CONFIG, RunDir
 from smspace.train.terms import HISTORY, STUDY, differing, study_template, terms
 
@@ -38,12 +40,20 @@ def study_record(out: Store) -> dict[str, Any] | None:
         record = json.loads(out.read_bytes(STUDY))
         if not isinstance(record, dict) or not isinstance(record["terms"], dict):
             raise TypeError("not a study record")
+        groups = record.get("ensembles", [])
+        if not isinstance(groups, list) or not all(
+            isinstance(g, list) and all(isinstance(n, str) for n in g) for g in groups
+        ):
+            raise TypeError("ensembles is not a list of lists of run names")
+        names = [n for g in groups for n in g]
+        if len(names) != len(set(names)):
+            raise ValueError("a run is listed in two ensembles")
         return record
     except FileNotFoundError:
         return None
-    except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError) as e:
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError) as e:
         raise SmspaceError(
-            f"{out.url}/{STUDY} is unreadable ({type(e).__name__}); pass --overwrite to start anew"
+            f"{out.url}/{STUDY} is unreadable ({one_line(e, with_type=True)}); pass --overwrite to start anew"
         ) from e
 
 
@@ -178,12 +188,23 @@ def check_terms(study: SweepPlan, out: Store, overwrite: bool) -> tuple[TrainCon
 
 
 def check_study_model(template: TrainConfig, setup: str, seed: int) -> None:
-    """The study's network run once on a probe batch of the setup's sizes (train/contract.py), before
-    any dataset is generated: a broken model is refused before anything is written. The world is
-    the one generation's pre-flight builds and keeps (datagen/parts.py, world_for)."""
-    n_sensor = int(np.prod(world_for(setup, seed).sensor_shape))
+    """What a run would refuse, refused before any dataset, study record or run folder is written:
+    a device this machine lacks, a network that does not fit in memory, then a network that breaks
+    its contract on a probe batch (train/contract.py). The world is the one generation's pre-flight
+    builds and keeps (datagen/parts.py, world_for)."""
+    resolve_device(template.device)
+    world = world_for(setup, seed)
+    n_motor, n_sensor = get_setup(setup).n_motor, int(np.prod(world.sensor_shape))
+    with plugins.guarded(setup_plugin(setup), f"in regular_sampling() of world {seed}"):
+        n_regular = len(world.regular_sampling()[0])
+    needed, free = memory_needed(template, n_motor, n_sensor, n_regular, 1), available_memory()
+    if needed > free:
+        raise SmspaceError(
+            f"one run of this study needs about {needed / 2**30:.1f} GiB of memory; "
+            f"{free / 2**30:.1f} GiB are available"
+        )
     layers = template.encoder_layers, template.predictor_layers
-    check_model(template.model, get_setup(setup).n_motor, n_sensor, template.n_h, *layers, template.model_params)
+    check_model(template.model, n_motor, n_sensor, template.n_h, *layers, template.model_params)
 
 
 def prepare(

@@ -242,3 +242,17 @@ def test_resume_refuses_a_folder_holding_parts_of_two_runs(s3, tmp_path, monkeyp
     result = CliRunner().invoke(main, ["fit", "--resume", f"{out}-1", "--steps", 40])
     assert result.exit_code == 2 and "holds parts of different runs" in result.output, result.output
     assert json.loads(fs.cat_file(f"{out[5:]}-1/config.json"))["steps"] == 20  # nothing written
+
+
+@pytest.mark.parametrize("fault", ["corrupt", "truncate", "503", "stall"])
+def test_a_transient_read_of_a_manifest_is_never_called_another_config(proxy, fault):
+    """One garbled, cut, refused or stalled GET of manifest.json: generate said "was generated with
+    another config; pass --overwrite", advice that deletes a sound dataset. Only a manifest read
+    whole and parsed is compared: the same command finds the dataset complete."""
+    lake = f"s3://lake/transient-{fault}"
+    assert run(proxy, "smgen", "generate", *GRID, "--mode", "MM", "--lake", lake).returncode == 0
+    proxy.add(fault, method="GET", path="grid-seed3-MM/manifest.json", count=1)
+    again = run(proxy, "smgen", "generate", *GRID, "--mode", "MM", "--lake", lake)
+    assert again.returncode == 0 and again.stdout.strip().endswith("\texists"), again.stderr
+    assert "another config" not in again.stderr
+    assert any(f == fault for _, p, f in proxy.seen if "manifest.json" in p), proxy.seen  # the fault was met

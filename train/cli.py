@@ -13,6 +13,8 @@ import click
 
 from smspace.common.cli import (
     LAKE_OPTION,
+    MAX_ENSEMBLE,
+    MAX_WORKERS,
     OneLineErrors,
     display_name,
     echo_listing,
@@ -174,13 +176,17 @@ def _attempt(action):
 )
 @config_options(exclude=("seed",))
 @click.option(
-    "--max-ensemble", type=click.IntRange(1, 10_000), default=150, show_default=True, help="Runs per vectorised model."
+    "--max-ensemble",
+    type=click.IntRange(1, MAX_ENSEMBLE),
+    default=150,
+    show_default=True,
+    help="Runs per vectorised model.",
 )
 @click.option("--overwrite", is_flag=True, help="Replace runs in --out made with another config.")
 @executor_option("ensembles train")
 @click.option(
     "--workers",
-    type=click.IntRange(min=1),
+    type=click.IntRange(1, MAX_WORKERS),
     default=None,
     help="Ensembles trained at once (processes, or CPUs of a local Ray) [default: this machine's cores].",
 )

@@ -38,12 +38,22 @@ def json_object(ctx, param, value: str | None) -> dict | None:
     if value is None:
         return None
     try:
-        parsed = json.loads(value)
-    except json.JSONDecodeError:
+        parsed = json.loads(value, object_pairs_hook=_no_duplicate_keys)
+    except ValueError as e:
+        if not isinstance(e, json.JSONDecodeError):  # a key given twice: the last would silently win
+            raise click.BadParameter(f"{e} in {value!r}") from None
         raise click.BadParameter(f"expected a JSON object such as '{{\"width\": 64}}', got {value!r}") from None
     if not isinstance(parsed, dict):
         raise click.BadParameter(f"expected a JSON object, got {value!r}")
     return parsed
+
+
+def _no_duplicate_keys(pairs: list[tuple[str, object]]) -> dict:
+    keys = [k for k, _ in pairs]
+    twice = sorted({k for k in keys if keys.count(k) > 1})
+    if twice:
+        raise ValueError(f"{', '.join(map(repr, twice))} given twice")
+    return dict(pairs)
 
 
 def model_choices() -> tuple[str, ...]:

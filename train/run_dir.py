@@ -256,6 +256,9 @@ class RunDir:
             return {"state": "created", "step": 0, "message": ""}
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise SmspaceError(f"{self.path}/{STATUS} is unreadable ({type(e).__name__})") from e
+        fields = {"state": str, "step": int, "message": str}
+        if not isinstance(status, dict) or not all(isinstance(status.get(k), t) for k, t in fields.items()):
+            raise SmspaceError(f"{self.path}/{STATUS} is unreadable (state, step and message must be recorded)")
         mine = status.get("host") == socket.gethostname()
         if status.get("state") == "running" and mine and not _alive(status.get("pid")):
             status |= {"state": "stale", "message": "its process is gone; resume with --resume"}

@@ -1,0 +1,151 @@
+"""What a careless operator types is refused in one line before anything is written (issue: faults
+on the study, plugin and storage surfaces)."""
+
+from __future__ import annotations
+
+import pytest
+
+from .conftest import SAMPLES, run_cmd
+
+
+def one_error(result) -> str:
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize("name", ["../../escaped", "a/b", "/abs", ".hidden", "x" * 101])
+def test_a_study_name_is_a_folder_name_not_a_path(tmp_path, name):
+    """`name = "../../escaped"` without --out wrote the study outside the working folder, rc 0."""
+    work = tmp_path / "work" / "deep"
+    work.mkdir(parents=True)
+    study = work / "study.toml"
+    study.write_text(f'[study]\nname = "{name}"\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 3000\n'
+                     '[train]\nsteps = 20\neval_every = 10\n')  # fmt: skip
+    line = one_error(run_cmd("smtrain", "sweep", study, "--lake", tmp_path / "lake", cwd=work))
+    assert "study.name" in line and "plain folder name" in line, line
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["deep", "study.toml", "work"]
+
+
+def test_a_model_parameter_given_twice_is_refused(tmp_path):
+    """`--model-params '{"width": 64, "width": 65}'` was taken, the last value winning."""
+    out = tmp_path / "run"
+    result = run_cmd("smtrain", "fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", out,
+                     "--model-params", '{"width": 64, "width": 65}')  # fmt: skip
+    assert "'width' given twice" in one_error(result) and not out.exists()
+
+
+@pytest.mark.parametrize(
+    "train, needle",
+    [
+        ('device = "cuda"', "--device cuda: no CUDA GPU is usable here"),
+        ("encoder_layers = [65536, 65536]", "GiB of memory"),
+    ],
+)
+def test_a_study_this_machine_cannot_run_is_refused_before_anything_is_written(tmp_path, train, needle):
+    """Refused only after datasets, study-file.*, study.json or run configs were written; the
+    corrected file was then refused because of those leftovers."""
+    import torch
+
+    if "cuda" in train and torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    study = tmp_path / "study.toml"
+    study.write_text(f'[study]\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 3000\n[train]\nsteps = 20\n{train}\n')
+    lake, out = tmp_path / "lake", tmp_path / "runs"
+    for dry in ([], ["--dry-run"]):
+        line = one_error(run_cmd("smtrain", "sweep", study, "--lake", lake, "--out", out, *dry))
+        assert needle in line, line
+        assert not lake.exists() and not out.exists()
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("[grid]\nn_h = {a}\nlr_start = {b}\n", "combinations; at most 1000"),
+        ("[run]\nworkers = 1000000\n", "run.workers"),
+        ("[study]\nseed = 9223372036854775807\nworlds = 2\n", "passes the largest seed"),
+        ("[study]\ntransitions = 2199023255553\n", "study.transitions"),
+    ],
+)
+def test_unbounded_studies_are_refused_at_once(tmp_path, text, needle):
+    """A grid of 1000 x 1000 values took 8.7 s to parse and its dry run did not end; a million
+    workers started a process per run; seed 2**63-1 with 2 worlds wrote a dataset that then read
+    as corrupt."""
+    text = text.format(a=list(range(1, 1001)), b=[i / 1e4 for i in range(1, 1001)])
+    head = '[study]\nsetup = "grid"\nmodes = ["MM"]\n' if not text.startswith("[study]") else ""
+    body = text.replace("[study]\n", '[study]\nsetup = "grid"\nmodes = ["MM"]\n') if not head else text
+    study = tmp_path / "study.toml"
+    study.write_text(head + body)
+    line = one_error(run_cmd("smtrain", "sweep", study, "--lake", tmp_path / "lake", "--out", tmp_path / "o",
+                             "--dry-run", timeout=60))  # fmt: skip
+    assert needle in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["study.toml"]
+
+
+def test_a_study_file_read_from_a_pipe_is_recorded_as_given(tmp_path):
+    """`smtrain sweep <(cat study.toml)` trained but recorded an empty study-file.toml (read twice)."""
+    import subprocess
+
+    from .conftest import BIN
+
+    study = tmp_path / "study.toml"
+    text = '[study]\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 3000\n[train]\nsteps = 20\neval_every = 10\n'
+    study.write_text(text)
+    out = tmp_path / "runs"
+    cmd = f"{BIN / 'smtrain'} sweep <(cat {study}) --lake {tmp_path / 'lake'} --out {out} --workers 1"
+    done = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert (out / "study-file.toml").read_text() == text
+
+
+def test_a_study_file_nested_thousands_deep_is_one_line(tmp_path):
+    study = tmp_path / "deep.toml"
+    study.write_text("[grid]\nn_h = " + "[" * 3000 + "]" * 3000 + "\n")
+    line = one_error(run_cmd("smtrain", "sweep", study, "--dry-run", "--lake", tmp_path / "lake"))
+    assert "nests its values too deeply" in line or "not valid TOML" in line, line
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    """A finished one-run study, made once: the tampering tests copy it."""
+    root = tmp_path_factory.mktemp("swept")
+    study = root / "study.toml"
+    study.write_text('[study]\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 3000\n[train]\nsteps = 20\n'
+                     'eval_every = 10\n[grid]\nn_h = [2, 3]\n')  # fmt: skip
+    done = run_cmd("smtrain", "sweep", study, "--lake", root / "lake", "--out", root / "runs", "--workers", 1)
+    assert done.returncode == 0, done.stderr
+    return root
+
+
+@pytest.mark.parametrize(
+    "file, edit, needle",
+    [
+        ("study-file.json", lambda r: r | {"grid": {"n_h": 3}}, "study-file.json is unreadable"),
+        ("study-file.json", lambda r: r | {"grid": "x"}, "study-file.json is unreadable"),
+        ("n_h=2/study.json", lambda r: r | {"ensembles": 5}, "study.json is unreadable"),
+        ("n_h=2/study.json", lambda r: r | {"ensembles": [r["ensembles"][0] * 2]}, "listed in two ensembles"),
+    ],
+)
+def test_tampered_study_records_are_one_line(swept, tmp_path, file, edit, needle):
+    import json
+    import shutil
+
+    root = tmp_path / "copy"
+    shutil.copytree(swept, root)
+    path = root / "runs" / file
+    path.write_text(json.dumps(edit(json.loads(path.read_text()))))
+    result = run_cmd("smtrain", "sweep", root / "study.toml", "--lake", root / "lake", "--out", root / "runs",
+                     "--workers", 1)  # fmt: skip
+    assert needle in one_error(result)
+
+
+def test_a_tampered_status_is_listed_as_broken_not_a_traceback(swept, tmp_path):
+    import json
+    import shutil
+
+    root = tmp_path / "copy"
+    shutil.copytree(swept, root)
+    (status,) = (root / "runs" / "n_h=2").glob("*/status.json")
+    status.write_text(json.dumps(json.loads(status.read_text()) | {"step": "x"}))
+    listed = run_cmd("smtrain", "ls", "--runs", status.parent.parent)
+    assert "Traceback" not in listed.stderr and "status.json is unreadable" in listed.stdout + listed.stderr, listed
