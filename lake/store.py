@@ -354,7 +354,6 @@ class RemoteStore(Store):
             return self.fs.isfile(self.root)
 
     def make(self) -> None:
-        self._refuse_links()
         if self.is_file():
             raise SmspaceError(f"{self.url} exists and is not a folder")
 
