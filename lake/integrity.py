@@ -8,10 +8,14 @@ otherwise (a local file, a multipart upload, a manifest without MD5s) the file i
 
 from __future__ import annotations
 
+import hashlib
+from collections.abc import Callable
 from typing import Any
 
 from smspace.common.errors import DatasetCorrupt
-from smspace.lake.store import Store
+from smspace.lake.store import Store, TransferFailed
+
+READS = 3  # whole reads of a file that does not match before anything is concluded
 
 
 def file_problem(store: Store, entry: dict[str, Any]) -> str | None:
@@ -41,3 +45,36 @@ def check_file(store: Store, entry: dict[str, Any], dataset_id: str) -> None:
             f"{store.url}/{entry['file']} is not the file dataset {dataset_id} records: {problem}; "
             f"`smgen validate` names every damaged file and re-running its `smgen generate` repairs them"
         )
+
+
+def read_verified(
+    store: Store, name: str, problem_of: Callable[[bytes], str | None], stored_sound: Callable[[], bool] = lambda: False
+) -> tuple[bytes, str | None]:
+    """A file read whole until `problem_of` finds nothing wrong with it. A read can fail in transit
+    without the client noticing (a body cut or garbled on the way), so a file is called damaged only
+    when the same wrong bytes come back twice and the storage does not vouch for the stored object
+    (`stored_sound`: its ETag is the recorded MD5). Returns (bytes, None) for a good read, (bytes,
+    problem) for a file stored so; raises TransferFailed when the reads never brought the file."""
+    seen: list[bytes] = []
+    for _ in range(READS):
+        data = store.read_bytes(name)
+        problem = problem_of(data)
+        if problem is None:
+            return data, None
+        if data in seen and not stored_sound():
+            return data, problem
+        seen.append(data)
+    why = "the storage holds it intact" if stored_sound() else "each brought other bytes"
+    raise TransferFailed(
+        f"{store.url}/{name}: {READS} reads did not bring the recorded file ({why}): "
+        "the transfer is failing, not the file; try again"
+    )
+
+
+def content_problem(data: bytes, entry: dict[str, Any]) -> str | None:
+    """Why bytes read whole are not the file a manifest entry records, or None."""
+    if len(data) != entry["bytes"]:
+        return f"{len(data)} bytes, manifest says {entry['bytes']} (truncated or replaced)"
+    if hashlib.sha256(data).hexdigest() != entry["sha256"]:
+        return "sha256 differs from the manifest"
+    return None

@@ -15,6 +15,7 @@ from typing import Any
 
 from smspace import schemas
 from smspace.common.errors import DatasetCorrupt, SmspaceError
+from smspace.lake.integrity import read_verified
 from smspace.lake.store import Store, open_store
 from smspace.lake.transitions import MODES
 
@@ -189,16 +190,21 @@ def load_manifest(folder: Path | Store, data: bytes | None = None) -> Manifest:
     `data`: its bytes when the caller already fetched them (a lake listing)."""
     folder = open_store(folder)
     path = f"{folder.url}/{MANIFEST}"
-    try:
-        raw = json.loads(folder.read_bytes(MANIFEST) if data is None else data)
-    except (FileNotFoundError, NotADirectoryError):
-        if folder.exists(GENERATION):
-            raise SmspaceError(f"dataset {folder} is incomplete (its generation did not finish): re-run it") from None
-        raise SmspaceError(f"{folder} is not a dataset (no {MANIFEST})") from None
-    except DatasetCorrupt as e:
-        raise DatasetCorrupt(f"corrupt manifest {path}: not a regular file") from e
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DatasetCorrupt(f"corrupt manifest {path}: {e}") from e
+    if data is not None and _json_problem(data) is None:
+        raw = json.loads(data)
+    else:  # read (again): bytes garbled on the way are a transfer's fault, not a corrupt manifest
+        try:
+            data, problem = read_verified(folder, MANIFEST, _json_problem)
+        except (FileNotFoundError, NotADirectoryError):
+            if folder.exists(GENERATION):
+                incomplete = f"dataset {folder} is incomplete (its generation did not finish): re-run it"
+                raise SmspaceError(incomplete) from None
+            raise SmspaceError(f"{folder} is not a dataset (no {MANIFEST})") from None
+        except DatasetCorrupt as e:
+            raise DatasetCorrupt(f"corrupt manifest {path}: not a regular file") from e
+        if problem is not None:
+            raise DatasetCorrupt(f"corrupt manifest {path}: {problem}")
+        raw = json.loads(data)
     if not isinstance(raw, dict):
         raise DatasetCorrupt(f"corrupt manifest {path}: not a JSON object")
     version = raw.get("schema_version")
@@ -211,6 +217,14 @@ def load_manifest(folder: Path | Store, data: bytes | None = None) -> Manifest:
         raise DatasetCorrupt(f"corrupt manifest {path}: {problem}")
     known = {f for f in Manifest.__dataclass_fields__}
     return Manifest(**{k: v for k, v in raw.items() if k in known})  # fields of later versions are ignored
+
+
+def _json_problem(data: bytes) -> str | None:
+    try:
+        json.loads(data)
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        return str(e)
+    return None
 
 
 # -- every field of a manifest, checked before anything trusts it: a hostile or hand-edited
