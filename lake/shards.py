@@ -23,7 +23,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from smspace import schemas
 from smspace.common.errors import DatasetCorrupt, SmspaceError, one_line
-from smspace.lake.store import Store, TransferFailed, open_store
+from smspace.lake.store import Store, TransferFailed, damaged_transfer, open_store
 from smspace.lake.transitions import Transitions
 
 CHUNK_PREFIX = 1 + 8  # a chunk record's opcode and length, before its content
@@ -148,16 +148,22 @@ class ShardReader:
         self.store, self.name, self._data = store, name, data
         self.path = name if store is None else f"{store.url}/{name}"  # for messages
         self._validate_crcs = validate_crcs
-        try:
-            self._fh = io.BytesIO(data) if data is not None else store.open(name)
-        except FileNotFoundError:
-            raise SmspaceError(f"missing shard {self.path}") from None
-        try:
-            self._reader: SeekingReader = make_reader(self._fh, validate_crcs=validate_crcs)
-            summary = self._reader.get_summary()
-        except Exception as e:  # whatever mcap, zstd or protobuf raise on bad bytes is corruption
-            self._fh.close()
-            raise DatasetCorrupt(f"corrupt shard {self.path}: {one_line(e, with_type=True)}") from e
+        for attempt in range(CHUNK_READS):  # the summary, read again when the transfer failed
+            try:
+                self._fh = io.BytesIO(data) if data is not None else store.open(name)
+            except FileNotFoundError:
+                raise SmspaceError(f"missing shard {self.path}") from None
+            try:
+                self._reader: SeekingReader = make_reader(self._fh, validate_crcs=validate_crcs)
+                summary = self._reader.get_summary()
+                break
+            except Exception as e:  # what mcap, zstd or protobuf raise on bad bytes is corruption…
+                self._fh.close()
+                transfer = damaged_transfer(e)  # …but a connection cut or garbled on the way is not
+                if transfer is None:
+                    raise DatasetCorrupt(f"corrupt shard {self.path}: {one_line(e, with_type=True)}") from e
+                if attempt == CHUNK_READS - 1:
+                    raise TransferFailed(f"{self.path}: the transfer failed {CHUNK_READS} times ({transfer})") from None
         if summary is None:
             self._fh.close()
             raise DatasetCorrupt(f"corrupt shard {self.path}: no summary (truncated?)")

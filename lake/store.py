@@ -503,7 +503,7 @@ def remote_errors(url: str) -> Iterator[None]:
             raise SmspaceError(
                 f"{url}: access denied ({one_line(e)}); check the credentials (AWS_ACCESS_KEY_ID…)"
             ) from None
-        damaged = _damaged_transfer(e)
+        damaged = damaged_transfer(e)
         if damaged:
             raise TransferFailed(f"{url}: {damaged}") from None
         raise SmspaceError(f"{url}: {_explain(e)}") from None
@@ -531,7 +531,8 @@ def _status(e: BaseException) -> int | None:
 TRANSFER_ERRORS = ("FlexibleChecksumError", "ResponseStreamingError", "IncompleteRead", "ClientPayloadError")
 
 
-def _damaged_transfer(e: BaseException) -> str | None:
+def damaged_transfer(e: BaseException) -> str | None:
+    """What failed in transit behind an error (a cut body, a bad checksum), or None."""
     for link in _chain(e):
         if type(link).__name__ in TRANSFER_ERRORS:
             return f"{type(link).__name__}: {one_line(link)}"

@@ -278,3 +278,16 @@ def test_a_whole_read_damaged_in_transit_is_read_again_not_called_damaged(proxy,
     assert always.returncode == 1 and "shard-00001.mcap" in text, text
     # the object's ETag is the recorded MD5: the storage holds it intact, so the reads are to blame
     assert "transfer" in text and "differs" not in text and "truncated or replaced" not in text, text
+
+
+@pytest.mark.parametrize("fault", ["reset", "truncate", "corrupt"])
+def test_a_shard_read_failing_once_in_transit_does_not_stop_a_fit(proxy, tmp_path, fault):
+    """One connection reset mid-GET of a shard during fit was "corrupt shard …: ClientPayloadError:
+    Response payload is not completed"."""
+    lake = f"s3://lake/fit-{fault}"
+    assert run(proxy, "smgen", "generate", *GRID, "--mode", "MM", "--lake", lake).returncode == 0
+    proxy.add(fault, method="GET", path="grid-seed3-MM/shard-00000", count=1)
+    out = tmp_path / "run"
+    result = run(proxy, "smtrain", "fit", f"{lake}/grid-seed3-MM", "--steps", 20, "--eval-every", 10, "--out", out)
+    assert result.returncode == 0, result.stderr
+    assert any(f == fault for _, _, f in proxy.seen), proxy.seen
