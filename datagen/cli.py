@@ -151,7 +151,7 @@ def finalize(datasets, lake) -> None:
 @friendly_errors
 def ls_(lake, as_json) -> None:
     """List the datasets of a lake (from its catalog)."""
-    from smspace.lake.catalog import read_catalog
+    from smspace.lake.catalog import manifest_versions, read_catalog
     from smspace.lake.dataset import open_lake
 
     store = open_lake(lake)
@@ -159,8 +159,10 @@ def ls_(lake, as_json) -> None:
         raise SmspaceError(f"lake path {store} is a file, not a folder")
     if not store.is_folder():  # a mistyped name must not look like an empty lake
         raise SmspaceError(f"no lake at {store} (nothing was generated there; --lake or $SMSPACE_LAKE names it)")
+    rows = read_catalog(store).to_pylist()
+    left_out = sorted(set(manifest_versions(store)) - {r["id"] for r in rows})
     echo_listing(
-        read_catalog(store).to_pylist(),
+        rows,
         as_json,
         f"{'id':<28} {'setup':<6} {'mode':<4} {'seed':>5} {'transitions':>11} {'MB':>8}",
         lambda r: (
@@ -168,6 +170,13 @@ def ls_(lake, as_json) -> None:
             f"{r['bytes'] / 1e6:>8.2f}"
         ),
     )
+    if left_out:  # a dataset whose manifest does not read is not listed, but never silently
+        shown = ", ".join(left_out[:5]) + (", …" if len(left_out) > 5 else "")
+        click.echo(
+            f"smgen: note: {len(left_out)} dataset folder(s) left out, their manifest does not read: {shown} "
+            "(`smgen validate ID` says why)",
+            err=True,
+        )
 
 
 @main.command()

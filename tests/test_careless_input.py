@@ -155,3 +155,28 @@ def test_a_tampered_status_is_listed_as_broken_not_a_traceback(swept, tmp_path):
     listed = run_cmd("smtrain", "ls", "--runs", status.parent.parent)
     assert listed.returncode == 0 and "Traceback" not in listed.stderr, listed.stderr
     assert "broken" in listed.stdout, listed.stdout
+
+
+def test_smgen_ls_says_which_datasets_it_left_out(tmp_path):
+    """A dataset with a corrupt manifest was left out of `smgen ls` with rc 0 and no note."""
+    import shutil
+
+    lake = tmp_path / "lake"
+    shutil.copytree(SAMPLES, lake)
+    (lake / "grid-seed0-MM" / "manifest.json").write_text("{not json")
+    listed = run_cmd("smgen", "ls", "--lake", lake)
+    assert listed.returncode == 0 and "grid-seed0-MME" in listed.stdout and "grid-seed0-MM " not in listed.stdout
+    assert "1 dataset folder(s) left out, their manifest does not read: grid-seed0-MM" in listed.stderr, listed.stderr
+
+
+def test_a_config_no_run_could_have_names_its_file(tmp_path):
+    """A NaN lr_start in a run's config.json: "--lr-start must be a finite positive number" named no file."""
+    import json
+
+    run = tmp_path / "run"
+    assert run_cmd("smtrain", "fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", run, "--steps", 20,
+                   "--eval-every", 10).returncode == 0  # fmt: skip
+    cfg = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps(cfg | {"lr_start": float("nan")}))
+    line = one_error(run_cmd("smtrain", "fit", "--resume", run, "--steps", 40))
+    assert f"{run}/config.json holds a config no run could have" in line, line

@@ -229,6 +229,8 @@ class RunDir:
             raise SmspaceError(f"{self.path} is not a run folder (no {CONFIG})") from None
         except (json.JSONDecodeError, UnicodeDecodeError, TypeError, AttributeError) as e:
             raise SmspaceError(f"{self.path}/{CONFIG} is unreadable ({type(e).__name__})") from e
+        except SmspaceError as e:  # a value no flag would take (a NaN lr_start): name the file
+            raise SmspaceError(f"{self.path}/{CONFIG} holds a config no run could have: {e}") from e
 
     def recorded_keys(self) -> set[str]:
         """The config fields config.json holds (an older smspace recorded fewer)."""
