@@ -192,6 +192,9 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
             at = folder_name(combination)
             raise SmspaceError(f"{where}: {f'[{at}] ' if at else ''}{e}") from None
     names = [folder_name(c) for c in resolved.combinations()]
+    for name in names:  # each names a folder: no NUL, no separator, within a file system's 255 bytes
+        if "\x00" in name or "/" in name or len(name.encode()) > 255:
+            raise bad("grid", f"combination {name[:60]!r}… cannot name a folder (a NUL, a '/' or over 255 bytes)")
     if len(set(names)) != len(names):
         raise bad("grid", "two combinations would share a folder name; give values that print differently")
     return resolved

@@ -180,3 +180,29 @@ def test_a_config_no_run_could_have_names_its_file(tmp_path):
     (run / "config.json").write_text(json.dumps(cfg | {"lr_start": float("nan")}))
     line = one_error(run_cmd("smtrain", "fit", "--resume", run, "--steps", 40))
     assert f"{run}/config.json holds a config no run could have" in line, line
+
+
+@pytest.mark.parametrize("value", ['"a\\u0000b"', '"' + "w" * 300 + '"'])
+def test_a_grid_value_that_cannot_name_a_folder_is_one_line(tmp_path, value):
+    """A NUL in a grid value, or a combination folder name over 255 bytes: tracebacks."""
+    study = tmp_path / "study.toml"
+    study.write_text('[study]\nsetup = "grid"\nmodes = ["MM"]\n[train]\nsteps = 20\nmodel = "sensorimotor"\n'
+                     f'[grid]\nmodel_params = [{{tag = {value}}}]\n')  # fmt: skip
+    line = one_error(run_cmd("smtrain", "sweep", study, "--lake", tmp_path / "lake", "--dry-run"))
+    assert "cannot name a folder" in line, line
+
+
+def test_a_metrics_file_missing_a_column_is_one_line(tmp_path):
+    """A metrics file without d_topo: report died with a KeyError."""
+    import pyarrow.parquet as pq
+
+    run = tmp_path / "run"
+    assert run_cmd("smtrain", "fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", run, "--steps", 20,
+                   "--eval-every", 10).returncode == 0  # fmt: skip
+    table = pq.read_table(run / "metrics.parquet")
+    pq.write_table(
+        table.drop_columns(["d_topo"]).replace_schema_metadata(table.schema.metadata), run / "metrics.parquet"
+    )
+    del pa
+    line = one_error(run_cmd("smtrain", "report", run, "--out", tmp_path / "report"))
+    assert "metrics.parquet is unreadable (no column d_topo)" in line, line

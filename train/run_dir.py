@@ -269,11 +269,15 @@ class RunDir:
     # -- metrics and embeddings -------------------------------------------------------------
     def metrics(self) -> list[dict[str, Any]]:
         try:
-            return parquet.read_table(self._read(METRICS)).to_pylist()
+            table = parquet.read_table(self._read(METRICS))
         except FileNotFoundError:
             return []
         except (OSError, pa.ArrowException) as e:
             raise SmspaceError(f"{self.path}/{METRICS} is unreadable ({type(e).__name__})") from e
+        missing = [f.name for f in METRICS_SCHEMA if f.name not in table.schema.names]
+        if missing:  # written by hand or by another tool: every reader would fail on a KeyError
+            raise SmspaceError(f"{self.path}/{METRICS} is unreadable (no column {', '.join(missing)})")
+        return table.to_pylist()
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
         table = pa.Table.from_pylist(rows, schema=METRICS_SCHEMA).replace_schema_metadata({RUN_ID: self.run_id})
