@@ -48,10 +48,13 @@ def study_record(out: Store) -> dict[str, Any] | None:
         names = [n for g in groups for n in g]
         if len(names) != len(set(names)):
             raise ValueError("a run is listed in two ensembles")
+        if not isinstance(record["terms"].get("steps"), int):
+            raise TypeError("terms.steps is not a number of steps")
+        TrainConfig.from_dict({**record["terms"], "dataset": ""})  # every term a value a run could have
         return record
     except FileNotFoundError:
         return None
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError) as e:
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError, SmspaceError) as e:
         raise SmspaceError(
             f"{out.url}/{STUDY} is unreadable ({one_line(e, with_type=True)}); pass --overwrite to start anew"
         ) from e

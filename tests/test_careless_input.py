@@ -124,6 +124,12 @@ def swept(tmp_path_factory):
         ("study-file.json", lambda r: r | {"grid": "x"}, None),
         ("study-file.json", lambda r: [r], "study-file.json is unreadable"),
         ("n_h=2/study.json", lambda r: r | {"ensembles": 5}, "study.json is unreadable"),
+        ("n_h=2/study.json", lambda r: r | {"terms": r["terms"] | {"steps": "x"}}, "study.json is unreadable"),
+        (
+            "n_h=2/study.json",
+            lambda r: r | {"terms": {k: v for k, v in r["terms"].items() if k != "steps"}},
+            "study.json is unreadable",
+        ),
         ("n_h=2/study.json", lambda r: r | {"ensembles": [r["ensembles"][0] * 2]}, "listed in two ensembles"),
     ],
 )
