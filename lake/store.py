@@ -34,6 +34,15 @@ def is_url(ref: str | Path) -> bool:
     return isinstance(ref, str) and "://" in ref
 
 
+def within(inner: Store | str | Path, outer: Store | str | Path) -> bool:
+    """Whether `inner` is `outer` or lies inside it: local folders compared resolved (links
+    followed), object storage by URL prefix. Outputs must never land inside their own inputs."""
+    a, b = (x.url if isinstance(x, Store) else str(x) for x in (inner, outer))
+    if is_url(a) or is_url(b):
+        return (a.rstrip("/") + "/").startswith(b.rstrip("/") + "/")
+    return Path(a).resolve().is_relative_to(Path(b).resolve())
+
+
 def check_name(folder: str, name: str) -> None:
     """A file of a folder is a plain name: nothing a manifest names can leave the folder."""
     if "/" in name or "\\" in name or name in ("", ".", ".."):

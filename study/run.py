@@ -27,7 +27,7 @@ from smspace.datagen.setups.contract import check_world
 from smspace.lake.manifest import GenConfig
 from smspace.lake.store import Store, open_store
 from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study, read_study
-from smspace.study.sweep import SweepPlan, check_terms, ensembles, prepare, run_ensembles
+from smspace.study.sweep import SweepPlan, check_apart, check_terms, ensembles, prepare, run_ensembles
 from smspace.train.config import TrainConfig, parameter_count
 from smspace.train.run_dir import CONFIG, RunDir
 from smspace.train.terms import terms
@@ -92,6 +92,7 @@ def run_study(
     gen_workers = gen_workers or study.run.get("gen_workers", workers)
     executor = executor or study.run.get("executor", "local")
     max_ensemble = study.run.get("max_ensemble", 150)
+    check_apart(out, lake)
     combos = combinations(study, out)
     checked = [check_terms(c.plan, c.out, overwrite) for c in combos]  # every refusal before any write
     for line in study_changes(study, out, overwrite):
@@ -175,6 +176,7 @@ def dry_run(
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = study.run.get("gen_workers", workers)
     max_ensemble = study.run.get("max_ensemble", 150)
+    check_apart(out, lake)
     combos = combinations(study, out)
     for combo in combos:
         check_terms(combo.plan, combo.out, overwrite)  # what a real run would refuse

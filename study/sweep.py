@@ -24,7 +24,7 @@ from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.catalog import check_lake
 from smspace.lake.manifest import load_manifest
-from smspace.lake.store import Store, open_store
+from smspace.lake.store import Store, open_store, within
 from smspace.study.monitor import StudyMonitor, monitored
 from smspace.train.config import TrainConfig, available_memory, memory_needed
 from smspace.train.contract import check_model
@@ -159,6 +159,7 @@ def sweep(
     """`explicit`: the training flags the user gave; `notify`: where a change of the study's terms
     (an extension) is said, before anything is generated or trained."""
     study = SweepPlan(setup, modes, world_seeds, template, transitions, explicit)
+    check_apart(out, lake)
     if executor == "ray":
         import_ray()  # a missing Ray is said before any dataset is generated
     runs, chunks = prepare(study, lake, out, gen_workers, max_ensemble, overwrite, workers, notify)
@@ -188,6 +189,12 @@ def check_terms(study: SweepPlan, out: Store, overwrite: bool) -> tuple[TrainCon
     template, change = plan_study(study.template, study.setup, study.n_transitions, out, overwrite, study.explicit)
     check_study_model(template, study.setup, study.world_seeds[0])
     return template, change
+
+
+def check_apart(out: Store | Path | str, lake: Store | str) -> None:
+    """A study's runs never go into its lake: run folders beside (or inside) datasets."""
+    if within(out, lake):
+        raise SmspaceError(f"--out {out} lies inside the lake {lake}; runs and datasets live apart")
 
 
 def check_study_model(template: TrainConfig, setup: str, seed: int) -> None:

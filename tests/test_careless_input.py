@@ -209,3 +209,25 @@ def test_a_metrics_file_missing_a_column_is_one_line(tmp_path):
     pq.write_table(table.drop_columns(["d_topo"]), run / "metrics.parquet")
     line = one_error(run_cmd("smtrain", "report", run, "--out", tmp_path / "report"))
     assert "metrics.parquet is unreadable (no column d_topo)" in line, line
+
+
+def test_outputs_never_land_inside_their_inputs(tmp_path):
+    """`sweep --out LAKE`, `--out LAKE/DATASET`, `fit --out` inside a dataset folder and `report
+    --out RUN` were all accepted."""
+    import shutil
+
+    lake = tmp_path / "lake"
+    shutil.copytree(SAMPLES, lake)
+    before = sorted(str(p) for p in lake.rglob("*"))
+    flags = ["--setup", "grid", "--modes", "MM", "--transitions", 3000, "--steps", 20, "--lake", lake]
+    for out in (lake, lake / "grid-seed0-MM"):
+        assert "runs and datasets live apart" in one_error(run_cmd("smtrain", "sweep", *flags, "--out", out))
+    inside = lake / "grid-seed0-MM" / "run"
+    line = one_error(run_cmd("smtrain", "fit", "grid-seed0-MM", "--lake", lake, "--out", inside, "--steps", 20))
+    assert "lies inside the dataset it trains on" in line, line
+    assert sorted(str(p) for p in lake.rglob("*")) == before
+    run = tmp_path / "run"
+    assert run_cmd("smtrain", "fit", "grid-seed0-MM", "--lake", lake, "--out", run, "--steps", 20,
+                   "--eval-every", 10).returncode == 0  # fmt: skip
+    line = one_error(run_cmd("smtrain", "report", run, "--out", run / "report"))
+    assert "which it reports on" in line and not (run / "report").exists(), line

@@ -17,6 +17,7 @@ from torch.nn.parallel import DistributedDataParallel
 
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
+from smspace.lake.store import within
 from smspace.train.config import TrainConfig, check_resources
 from smspace.train.contract import check_model
 from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch, ranks_agree
@@ -96,6 +97,8 @@ def plan_fit(
     check_network(cfg, ds.manifest)
     per_rank_batch(cfg.batch_size, Ranks(0, world))
     where = out or f"{RUNS}/{cfg.run_name}"
+    if within(where, ds.store):  # a run folder inside its dataset's folder would be taken for its files
+        raise SmspaceError(f"--out {where} lies inside the dataset it trains on ({ds.store.url}); choose another")
     RunDir.creatable(where, overwrite)
     return FitPlan(cfg, str(where), resume=False, overwrite=overwrite)
 

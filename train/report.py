@@ -14,6 +14,7 @@ import numpy as np
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
+from smspace.lake.store import within
 from smspace.metrics import affine_projection
 from smspace.train.run_dir import RunDir
 from smspace.train.terms import differing, terms
@@ -446,6 +447,9 @@ def report(paths: list[Path], out: Path) -> tuple[list[Path], list[str]]:
 
     matplotlib.use("Agg")
     studies = by_study(load_runs(expand_runs(paths)))
+    for path in paths:
+        if within(out, path):  # its pages would be written into the runs it reads
+            raise SmspaceError(f"--out {out} lies inside {path}, which it reports on; choose another")
     out.mkdir(parents=True, exist_ok=True)
     written, table, figures = [], [], {}
     for study in studies:
