@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import importlib.util
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cache
@@ -52,6 +53,23 @@ class Plugin:
 def registered(group: str) -> dict[str, EntryPoint]:
     """The entry points of a group by name (nothing loaded)."""
     return {ep.name: ep for ep in entry_points(group=group)}
+
+
+@cache
+def others(group: str, kind: str, builtin: tuple[str, ...]) -> dict[str, EntryPoint]:
+    """The entry points of a group but those named like one of smspace's own: smspace's wins, and
+    that is said once per process (on stderr) rather than the plugin being ignored without a word."""
+    found = registered(group)
+    for name in sorted(set(found) & set(builtin)):
+        ep = found[name]
+        dist = getattr(getattr(ep, "dist", None), "name", None) or "a package"
+        print(
+            f"smspace: note: the {kind} {name!r} of {dist} ({ep.value}) is not used: smspace's own {kind} "
+            "has that name; register it under another",
+            file=sys.stderr,
+            flush=True,
+        )
+    return {name: ep for name, ep in found.items() if name not in builtin}
 
 
 def describe(kind: str, ep: EntryPoint) -> Plugin:

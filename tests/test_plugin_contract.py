@@ -26,6 +26,7 @@ def bad_plugins():
     old = os.environ.get("PYTHONPATH")
     os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(PLUGINS), old) if p)
     plugins.registered.cache_clear()
+    plugins.others.cache_clear()
     yield
     sys.path.remove(str(PLUGINS))
     if old is None:
@@ -33,6 +34,7 @@ def bad_plugins():
     else:
         os.environ["PYTHONPATH"] = old
     plugins.registered.cache_clear()
+    plugins.others.cache_clear()
 
 
 def one_error_line(result) -> str:
@@ -196,3 +198,21 @@ def test_what_was_asked_and_what_was_done_are_recorded(tmp_path):
     assert line.endswith("; training eagerly (recorded in config.json)"), line
     info = run_cmd("smtrain", "info", out)
     assert "eager: torch.compile does not work here" in info.stdout, info.stdout
+
+
+def test_a_plugin_named_like_a_builtin_is_said_and_one_exiting_at_import_is_one_line(tiny_lake, tmp_path):
+    """A setup registered as `grid` was ignored without a word; a plugin calling sys.exit(7) at
+    import ended the command silently with 7."""
+    env = {"PYTHONPATH": os.pathsep.join([str(PLUGINS.parent / "plugins-shadow"), str(PLUGINS)])}
+    listed = run_cmd("smgen", "ls", "--lake", tiny_lake, env=env)
+    assert listed.returncode == 0, listed.stderr
+    notes = [ln for ln in listed.stderr.splitlines() if "is not used" in ln]
+    assert notes == [
+        "smspace: note: the setup 'grid' of smspace-shadow-plugins (smspace_shadow_plugins:GRID) is not used: "
+        "smspace's own setup has that name; register it under another"
+    ], listed.stderr
+    result = run_cmd("smtrain", "fit", "tiny-seed0-MM", "--lake", tiny_lake, "--out", tmp_path / "r", "--model",
+                     "exiting", env=env)  # fmt: skip
+    line = one_error_line(result)
+    assert "model 'exiting' (smspace_shadow_plugins.exiting:Net) raised being imported: SystemExit: 7" in line, line
+    assert not (tmp_path / "r").exists()

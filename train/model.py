@@ -89,14 +89,14 @@ def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 def model_names() -> tuple[str, ...]:
     """Every model a run may name: the built-in one and the registered ones (not loaded)."""
-    return (DEFAULT_MODEL, *sorted(name for name in plugins.registered(ENTRY_POINTS) if name != DEFAULT_MODEL))
+    return (DEFAULT_MODEL, *sorted(plugins.others(ENTRY_POINTS, "model", (DEFAULT_MODEL,))))
 
 
 @cache
 def _loaded(name: str) -> tuple[type[nn.Module], Plugin | None]:
     if name == DEFAULT_MODEL:
         return SensorimotorNet, None
-    ep = plugins.registered(ENTRY_POINTS).get(name)
+    ep = plugins.others(ENTRY_POINTS, "model", (DEFAULT_MODEL,)).get(name)
     if ep is None:
         raise SmspaceError(f"unknown model {name!r} (choose from {', '.join(model_names())})")
     return plugins.load("model", ep)

@@ -19,7 +19,7 @@ SETUPS: dict[str, Setup] = {s.name: s for s in (*grid.SETUPS, *arm.SETUPS)}  # t
 
 
 def _plugins() -> dict[str, object]:
-    return {name: ep for name, ep in plugins.registered(ENTRY_POINTS).items() if name not in SETUPS}
+    return plugins.others(ENTRY_POINTS, "setup", tuple(SETUPS))
 
 
 def setup_names() -> tuple[str, ...]:
