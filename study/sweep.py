@@ -213,8 +213,7 @@ def check_study_model(template: TrainConfig, setup: str, seed: int) -> None:
             f"one run of this study needs about {needed / 2**30:.1f} GiB of memory; "
             f"{free / 2**30:.1f} GiB are available"
         )
-    layers = template.encoder_layers, template.predictor_layers
-    check_model(template.model, n_motor, n_sensor, template.n_h, *layers, template.model_params)
+    check_model(template, n_motor, n_sensor)
 
 
 def prepare(

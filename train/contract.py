@@ -6,13 +6,13 @@ exactly (B, N_h), both finite. Broken, it is one line naming the model and what 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import torch
 
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError
+from smspace.train.config import TrainConfig
 from smspace.train.model import build_model, model_label, model_plugin, prediction_loss
 
 
@@ -21,22 +21,16 @@ def probe_batch_size(*sizes: int) -> int:
     return next(b for b in (7, 11, 13, 17, 19, 23) if b not in sizes)
 
 
-def check_model(
-    name: str,
-    n_motor: int,
-    n_sensor: int,
-    n_h: int,
-    encoder_layers: Sequence[int],
-    predictor_layers: Sequence[int],
-    params: dict[str, Any] | None = None,
-) -> None:
-    """Build the model and run it once, forward and backward, on a probe batch: one line if it
-    breaks the contract. Leaves torch's random state as it found it."""
+def check_model(cfg: TrainConfig, n_motor: int, n_sensor: int) -> None:
+    """Build the config's model and run it once, forward and backward, on a probe batch: one line
+    if it breaks the contract. Leaves torch's random state as it found it."""
+    name, n_h = cfg.model, cfg.n_h
     plugin, label = model_plugin(name), model_label(name)
     batch = probe_batch_size(n_motor, n_sensor, n_h)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(0)
-        model = build_model(name, n_motor, n_sensor, n_h, encoder_layers, predictor_layers, params)
+        layers = cfg.encoder_layers, cfg.predictor_layers
+        model = build_model(name, n_motor, n_sensor, n_h, *layers, cfg.model_params)
         generator = torch.Generator().manual_seed(0)
         m_t = torch.rand(batch, n_motor, generator=generator) * 2 - 1
         m_t1 = torch.rand(batch, n_motor, generator=generator) * 2 - 1

@@ -114,8 +114,7 @@ def check_network(cfg: TrainConfig, manifest) -> None:
     """The run's model holds to its contract on a probe batch (train/contract.py), after the memory
     it needs was found to be there."""
     n_sensor = int(np.prod(manifest.sensor_shape))
-    layers = cfg.encoder_layers, cfg.predictor_layers
-    check_model(cfg.model, manifest.n_motor, n_sensor, cfg.n_h, *layers, cfg.model_params)
+    check_model(cfg, manifest.n_motor, n_sensor)
 
 
 def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):
