@@ -293,7 +293,8 @@ def test_a_corrupt_catalog_is_rebuilt_from_the_manifests(samples_copy):
     assert result.exit_code == 0 and len(result.output.splitlines()) == 6
     _edit_manifest(samples_copy / "grid-seed0-MM", lambda m: m.update(config_hash="x"))
     (samples_copy / "catalog.parquet").write_bytes(b"garbage")
-    assert len(smgen("ls", "--lake", samples_copy, "--json").output.splitlines()) == 5
+    listed = smgen("ls", "--lake", samples_copy, "--json")  # the broken one left out, and said so
+    assert len(listed.stdout.splitlines()) == 5 and "left out" in listed.stderr, listed.output
 
 
 # -- output files: never overwritten without --overwrite, never onto an input, always whole ----------
@@ -541,7 +542,8 @@ def test_a_manifest_with_huge_sizes_leaves_the_lake_usable(samples_copy):
     (samples_copy / "catalog.parquet").unlink()
     listed = smgen("ls", "--lake", samples_copy, "--json")
     assert listed.exit_code == 0, listed.output
-    assert len(listed.output.splitlines()) == 5  # the five sound datasets; the broken one is left out
+    assert len(listed.stdout.splitlines()) == 5  # the five sound datasets; the broken one is left out
+    assert "1 dataset folder(s) left out, their manifest does not read: grid-seed0-MEM" in listed.stderr
     made = smgen(
         "generate", "--setup", "grid", "--mode", "MM", "--seed", 4, "--transitions", 1000, "--lake", samples_copy
     )
