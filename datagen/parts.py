@@ -22,7 +22,7 @@ from smspace.datagen.setups import MODES, World, draw_transitions, get_setup, se
 from smspace.datagen.setups.contract import check_block, check_regular, check_world, declared
 from smspace.lake.manifest import REGULAR_FILE, GenConfig, shard_name, software_versions
 from smspace.lake.shards import Block, ShardReader, regular_sampling_bytes, shard_bytes
-from smspace.lake.store import Store
+from smspace.lake.store import StorageUnreachable, Store
 
 REGULAR = -1  # the part number of the regular-sampling file; shards are 0 .. n_shards - 1
 _WORLDS: dict[tuple[str, int], World] = {}
@@ -144,6 +144,8 @@ def verify_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord | None:
     name = part_file(part)
     try:
         data = folder.read_bytes(name)
+    except StorageUnreachable:
+        raise  # not "absent": the endpoint is gone, and so is this command
     except (FileNotFoundError, SmspaceError):
         return None
     try:

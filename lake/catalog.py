@@ -19,7 +19,7 @@ from smspace.common.cli import display_name
 from smspace.common.errors import SmspaceError
 from smspace.lake import parquet
 from smspace.lake.manifest import MANIFEST, Manifest, load_manifest
-from smspace.lake.store import Store, open_store
+from smspace.lake.store import StorageUnreachable, Store, open_store
 
 CATALOG = "catalog.parquet"
 SOURCES_KEY = b"smspace.manifests"  # Parquet metadata: {"versions": {id: manifest version}, "broken": [id…]}
@@ -45,11 +45,14 @@ def _store(lake: Path | str | Store) -> Store:
     return lake if isinstance(lake, Store) else open_store(lake)
 
 
-def check_lake(lake: Path | str | Store) -> Store:
-    """The lake must be a folder (created if missing); a file there is a user error."""
+def check_lake(lake: Path | str | Store, create: bool = True) -> Store:
+    """The lake must be a folder (created if missing, unless `create` is False: checks that run
+    before any write); a file there is a user error."""
     store = _store(lake)
     if store.is_file():
         raise SmspaceError(f"lake path {store} is a file, not a folder")
+    if not create:
+        return store
     try:
         store.make()
     except SmspaceError as e:
@@ -78,6 +81,8 @@ def _scan(lake: Store, ids: list[str]) -> tuple[list[Manifest], dict[str, str], 
         except FileNotFoundError:  # deleted since the listing (a repair under way): not known either way
             gone.add(dataset_id)
             continue
+        except StorageUnreachable:
+            raise
         except SmspaceError as e:
             broken[dataset_id] = str(e)
             continue
@@ -154,9 +159,13 @@ def read_catalog(lake: Path | str | Store) -> pa.Table:
         table = table.replace_schema_metadata(None)
         if _cache_holds(table, sources, versions):
             return table
+    except StorageUnreachable:
+        raise
     except (OSError, pa.ArrowException, SmspaceError, ValueError):
         pass  # missing, unreadable or of an older layout: derive it again
     try:
         return rebuild_catalog(lake)
+    except StorageUnreachable:
+        raise
     except SmspaceError:  # a lake we may not write: list it all the same
         return catalog_table(lake)

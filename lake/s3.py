@@ -14,9 +14,25 @@ from __future__ import annotations
 from botocore import handlers
 from s3fs import S3FileSystem
 
+from smspace.lake.store import is_unreachable
+
 
 class BoundedS3FileSystem(S3FileSystem):
     retries = 1  # botocore retries (lake/store.py, s3_options); s3fs's own loop around it would multiply them
+    unanswered = 0  # requests the endpoint left unanswered after every attempt (lake/store.py, remote_errors)
+    last_unanswered: BaseException | None = None
+
+    async def _call_s3(self, method, *akwarglist, **kwargs):
+        """Counts what the endpoint left unanswered: s3fs and fsspec pass some such errors over
+        (`isfile` is False, a parent listing's failure is ignored), and a command that goes on after
+        a time-out outlives the bound the README promises."""
+        try:
+            return await super()._call_s3(method, *akwarglist, **kwargs)
+        except Exception as e:
+            if is_unreachable(e):
+                self.last_unanswered = e
+                self.unanswered += 1
+            raise
 
     async def set_session(self, refresh: bool = False, kwargs: dict | None = None):
         client = await super().set_session(refresh=refresh, kwargs=kwargs or {})

@@ -349,7 +349,7 @@ class RemoteStore(Store):
     def is_folder(self) -> bool:
         """Whether the prefix holds anything; one LIST request, which also proves the bucket exists,
         the credentials work and the endpoint answers (each failure named in one line)."""
-        with remote_errors(self.url):
+        with remote_errors(self.url, self.fs):
             try:
                 return bool(self.fs.ls(self.root, detail=False, refresh=True))
             except FileNotFoundError as e:
@@ -359,7 +359,7 @@ class RemoteStore(Store):
 
     def is_file(self) -> bool:
         self.is_folder()  # a missing bucket or bad credentials fail here, not as "no such file"
-        with remote_errors(self.url):
+        with remote_errors(self.url, self.fs):
             return self.fs.isfile(self.root)
 
     def make(self) -> None:
@@ -368,7 +368,7 @@ class RemoteStore(Store):
 
     def size(self, name: str) -> int:
         key = self._key(name)
-        with remote_errors(self.url):
+        with remote_errors(self.url, self.fs):
             info = self.fs.info(key, refresh=True)
         if info.get("type") != "file":
             raise DatasetCorrupt(f"{self.url}/{name}: not a file")
@@ -388,7 +388,7 @@ class RemoteStore(Store):
         body): the stored bytes are called corrupt only by what reads them whole and intact."""
         for attempt in range(TRANSFER_ATTEMPTS):
             try:
-                with remote_errors(self.url):
+                with remote_errors(self.url, self.fs):
                     return fetch()
             except TransferFailed as e:
                 if attempt == TRANSFER_ATTEMPTS - 1:
@@ -400,16 +400,16 @@ class RemoteStore(Store):
 
     def etag(self, name: str) -> str | None:
         key = self._key(name)
-        with remote_errors(self.url):
+        with remote_errors(self.url, self.fs):
             info = self.fs.info(key, refresh=True)
         return _md5_etag(info.get("ETag") or info.get("etag"))
 
     def open(self, name: str) -> BinaryIO:
-        with remote_errors(self.url):
+        with remote_errors(self.url, self.fs):
             return self.fs.open(self._key(name), "rb", block_size=READ_BLOCK, cache_type="readahead")
 
     def open_stream(self, name: str) -> BinaryIO:
-        with remote_errors(self.url):
+        with remote_errors(self.url, self.fs):
             return self.fs.open(self._key(name), "rb", block_size=1 << 24, cache_type="readahead")
 
     def put(self, name: str, data: bytes) -> str | None:
@@ -431,7 +431,7 @@ class RemoteStore(Store):
         token = uuid.uuid4().hex  # names this write, not a draw of any result
         digest = hashlib.md5(data, usedforsecurity=False)
         try:
-            with remote_errors(self.url):
+            with remote_errors(self.url, self.fs):
                 out = self.fs.pipe_file(
                     key,
                     data,
@@ -450,17 +450,17 @@ class RemoteStore(Store):
         return _md5_etag((out or {}).get("ETag"))
 
     def _written_by(self, token: str, key: str) -> bool:
-        with remote_errors(self.url):
+        with remote_errors(self.url, self.fs):
             self.fs.invalidate_cache(key)
             return self.fs.metadata(key).get(WRITE_TOKEN) == token
 
     def delete(self, name: str) -> None:
         key = self._key(name)
-        with remote_errors(self.url), contextlib.suppress(FileNotFoundError):
+        with remote_errors(self.url, self.fs), contextlib.suppress(FileNotFoundError):
             self.fs.rm_file(key)
 
     def fingerprints(self, pattern: str) -> dict[str, str]:
-        with remote_errors(self.url):
+        with remote_errors(self.url, self.fs):
             self.fs.invalidate_cache(self.root)
             found = self.fs.glob(f"{self.root}/{pattern}", detail=True)
         prefix = len(self.root) + 1
@@ -481,6 +481,12 @@ class WriteConflict(FileExistsError):
     """A conditional write refused (412): the object is not the version the writer expected."""
 
 
+class StorageUnreachable(SmspaceError):
+    """The endpoint did not answer (a time-out, a refused connection) after every attempt: nothing
+    may read this as "absent" or "damaged" and go on, so each request of a frozen endpoint is the
+    last of its command (README: the bound)."""
+
+
 class TransferFailed(SmspaceError):
     """The bytes did not arrive whole (a checksum mismatch, a cut connection); the stored object may
     be sound."""
@@ -493,15 +499,27 @@ def _md5_etag(tag: Any) -> str | None:
 
 
 @contextlib.contextmanager
-def remote_errors(url: str) -> Iterator[None]:
+def remote_errors(url: str, fs: Any = None) -> Iterator[None]:
     """Whatever s3fs, botocore or aiohttp raise becomes one line naming the place; a missing file
     stays FileNotFoundError (callers decide what absence means), a refused conditional write is a
-    WriteConflict, a damaged transfer a TransferFailed (worth another attempt)."""
+    WriteConflict, a damaged transfer a TransferFailed (worth another attempt). A request the
+    endpoint left unanswered is StorageUnreachable even where s3fs or fsspec passed over its error
+    (an `isfile` that returns False, a parent listing tried "just in case"): `fs` counts them."""
+    before = getattr(fs, "unanswered", 0)
+
+    def swallowed() -> StorageUnreachable | None:
+        if getattr(fs, "unanswered", 0) == before:
+            return None
+        return StorageUnreachable(f"{url}: {_explain(fs.last_unanswered)}")
+
     try:
         yield
     except (WriteConflict, TransferFailed):
         raise
     except Exception as e:
+        missed = None if is_unreachable(e) else swallowed()
+        if missed is not None:
+            raise missed from None
         if _status(e) == 412:  # by the status code: a key containing "412" is no precondition failure
             raise WriteConflict(url) from None
         if isinstance(e, FileNotFoundError):
@@ -515,7 +533,10 @@ def remote_errors(url: str) -> Iterator[None]:
         damaged = damaged_transfer(e)
         if damaged:
             raise TransferFailed(f"{url}: {damaged}") from None
-        raise SmspaceError(f"{url}: {_explain(e)}") from None
+        raise (StorageUnreachable if is_unreachable(e) else SmspaceError)(f"{url}: {_explain(e)}") from None
+    missed = swallowed()
+    if missed is not None:
+        raise missed
 
 
 def _chain(e: BaseException) -> Iterator[BaseException]:
@@ -550,6 +571,15 @@ def damaged_transfer(e: BaseException) -> str | None:
 
 def _missing_bucket(e: BaseException) -> bool:
     return "NoSuchBucket" in repr(e) or "bucket does not exist" in str(e).lower()
+
+
+def is_unreachable(e: BaseException) -> bool:
+    """Whether an error means the endpoint did not answer (a time-out, no connection), as opposed
+    to an answer: a refusal, an absence, or bytes damaged on the way."""
+    return not damaged_transfer(e) and _explain(e).startswith(UNREACHABLE)
+
+
+UNREACHABLE = ("cannot reach the storage endpoint", "the storage endpoint did not answer")
 
 
 def _explain(e: BaseException) -> str:
@@ -613,7 +643,8 @@ def s3_options() -> dict[str, Any]:
     connect = _env_number("SMSPACE_S3_CONNECT_TIMEOUT", 5.0)
     read = _env_number("SMSPACE_S3_READ_TIMEOUT", 20.0)
     attempts = _env_number("SMSPACE_S3_ATTEMPTS", 3, int)
-    retries = {"max_attempts": attempts, "mode": "standard"}
+    # total_max_attempts counts the first try; botocore's max_attempts would count only the retries
+    retries = {"total_max_attempts": attempts, "mode": "standard"}
     config = {"connect_timeout": connect, "read_timeout": read, "retries": retries}
     # botocore's default streams a trailing checksum with every upload, which makes the body a file
     # and adds `Expect: 100-continue`, whose wait no time limit covers (a frozen endpoint hung every

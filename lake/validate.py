@@ -11,7 +11,7 @@ from smspace.common.errors import SmspaceError
 from smspace.lake.integrity import content_problem, read_verified
 from smspace.lake.manifest import load_manifest
 from smspace.lake.shards import ShardReader
-from smspace.lake.store import Store, open_store
+from smspace.lake.store import StorageUnreachable, Store, open_store
 
 
 class _ModeCheck:
@@ -78,6 +78,8 @@ def _fetch(folder: Store, entry: dict) -> tuple[bytes | None, list[str]]:
         data, problem = read_verified(folder, name, lambda d: content_problem(d, entry), vouched)
     except FileNotFoundError:
         return None, ["missing"]
+    except StorageUnreachable:
+        raise
     except SmspaceError as e:
         return None, [str(e)]
     return data, [problem] if problem else []
@@ -89,6 +91,8 @@ def validate_dataset(folder: Store | Path) -> list[str]:
     folder = folder if isinstance(folder, Store) else open_store(Path(folder))
     try:
         manifest = load_manifest(folder)
+    except StorageUnreachable:
+        raise
     except SmspaceError as e:
         return [str(e)]
     problems: list[str] = []
@@ -116,6 +120,8 @@ def validate_dataset(folder: Store | Path) -> list[str]:
                     issue = mode_check.add(tr.shift_t, tr.shift_t1)
                     if issue:
                         problems.append(f"{where}: {issue}")
+        except StorageUnreachable:
+            raise
         except SmspaceError as e:
             problems.append(f"{where}: {e}")
             continue
@@ -142,6 +148,8 @@ def _regular_problems(folder: Store, manifest) -> list[str]:
     try:
         with ShardReader.from_bytes(data, f"{folder.url}/{reg['file']}") as reader:
             m, _ = reader.regular_sampling()
+    except StorageUnreachable:
+        raise
     except SmspaceError as e:
         return [f"{where}: {e}"]
     return [] if len(m) == reg["count"] else [f"{where}: {len(m)} samples, manifest says {reg['count']}"]

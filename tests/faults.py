@@ -25,7 +25,9 @@ class Rule:
     method: str | None = None  # GET, PUT, HEAD…; None: any
     path: str | None = None  # a substring of the request path; None: any
     count: int | None = None  # apply to this many matching requests, then pass; None: always
+    after: int = 0  # let this many matching requests through first (a fault that starts part-way)
     hits: int = 0
+    passed: int = 0
 
     def matches(self, method: str, path: str) -> bool:
         if self.count is not None and self.hits >= self.count:
@@ -51,9 +53,11 @@ class FaultProxy:
         self._thread = threading.Thread(target=self._serve, daemon=True)
         self._thread.start()
 
-    def add(self, fault: str, method: str | None = None, path: str | None = None, count: int | None = None) -> Rule:
+    def add(
+        self, fault: str, method: str | None = None, path: str | None = None, count: int | None = None, after: int = 0
+    ) -> Rule:
         assert fault in FAULTS, fault
-        rule = Rule(fault, method, path, count)
+        rule = Rule(fault, method, path, count, after)
         with self._lock:
             self.rules.append(rule)
         return rule
@@ -91,6 +95,9 @@ class FaultProxy:
         with self._lock:
             for rule in self.rules:
                 if rule.matches(method, path):
+                    if rule.passed < rule.after:
+                        rule.passed += 1
+                        continue
                     rule.hits += 1
                     self.seen.append((method, path, rule.fault))
                     return rule.fault

@@ -105,7 +105,7 @@ def test_damaged_transfers_are_retried_and_never_called_a_corrupt_shard(proxy, t
     """A truncated or corrupted answer is the connection's fault: the read is tried again, and the
     data are exactly the stored ones."""
     lake = "s3://lake/flaky"
-    proxy.env |= {"SMSPACE_S3_ATTEMPTS": "3"}  # the default: two failures in a row are still retried
+    proxy.env |= {"SMSPACE_S3_ATTEMPTS": "4"}  # three failures in a row (503, 503, reset) are still retried
     assert run(proxy, "smgen", "generate", *GRID, "--mode", "MEM", "--lake", lake).returncode == 0
     clean = run(
         proxy, "smgen", "export", "grid-seed3-MEM", "--lake", lake, "--format", "parquet", "--out", tmp_path / "a"
@@ -291,3 +291,41 @@ def test_a_shard_read_failing_once_in_transit_does_not_stop_a_fit(proxy, tmp_pat
     result = run(proxy, "smtrain", "fit", f"{lake}/grid-seed3-MM", "--steps", 20, "--eval-every", 10, "--out", out)
     assert result.returncode == 0, result.stderr
     assert any(f == fault for _, _, f in proxy.seen), proxy.seen
+
+
+def frozen_part_way(proxy, after: int, *args) -> tuple[str, list[tuple[str, str]]]:
+    """The command run with the endpoint frozen from its `after`-th request on: its one line, and
+    the requests that met the freeze."""
+    proxy.clear()
+    proxy.seen.clear()
+    proxy.add("stall", after=after)
+    line = one_line(run(proxy, *args, timeout=120), str(args[0]))
+    return line, [(m, p) for m, p, f in proxy.seen if f == "stall"]
+
+
+@pytest.mark.parametrize("after", [1, 4, 7, 10])
+def test_a_freeze_part_way_through_generate_ends_it_at_the_first_unanswered_request(proxy, after):
+    """Timed-out LISTs and HEADs were retried, then taken for "absent" (a part to redo) and passed
+    over; the command failed only at its next PUT, 71-145 s where the promised bound was 30 s. Now
+    the first request the endpoint leaves unanswered, after its attempts, ends the command: counted
+    in requests, not seconds, so the test holds on a busy machine."""
+    lake = "s3://lake/freeze"
+    args = ["smgen", "generate", "--setup", "grid", "--transitions", 6000, "--shard-size", 2500, "--mode", "MME"]
+    line, stalled = frozen_part_way(proxy, after, *args, "--seed", 10 + after, "--lake", lake)
+    assert "did not answer in time" in line, line
+    assert len(stalled) == int(FAST["SMSPACE_S3_ATTEMPTS"]) and len(set(stalled)) == 1, stalled
+
+
+@pytest.mark.parametrize("after", [1, 3, 6])
+def test_a_freeze_part_way_through_reading_commands_ends_them_at_the_first_unanswered_request(proxy, tmp_path, after):
+    lake = "s3://lake/freeze-read"
+    if after == 1:
+        assert run(proxy, "smgen", "generate", *GRID, "--mode", "MM", "--lake", lake).returncode == 0
+    for args in (
+        ["smgen", "ls", "--lake", lake],
+        ["smgen", "validate", "grid-seed3-MM", "--lake", lake],
+        ["smtrain", "fit", f"{lake}/grid-seed3-MM", "--steps", 20, "--out", tmp_path / f"r{after}"],
+    ):
+        line, stalled = frozen_part_way(proxy, after, *args)
+        assert "did not answer in time" in line, (args, line)
+        assert len(stalled) == int(FAST["SMSPACE_S3_ATTEMPTS"]) and len(set(stalled)) == 1, (args, stalled)

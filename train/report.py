@@ -14,7 +14,7 @@ import numpy as np
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
-from smspace.lake.store import within
+from smspace.lake.store import StorageUnreachable, within
 from smspace.metrics import affine_projection
 from smspace.train.run_dir import RunDir
 from smspace.train.terms import differing, terms
@@ -247,6 +247,8 @@ def projection_figure(run: RunData, step: int, path: Path) -> None:
 def _dataset(run: RunData) -> Dataset | None:
     try:
         return Dataset(run.run.config.dataset)
+    except StorageUnreachable:
+        raise
     except SmspaceError:
         return None
 
