@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
@@ -244,25 +245,49 @@ def _check_request(transitions: int, shard_size: int) -> None:
         raise SmspaceError(f"--transitions {transitions} is more than a dataset may hold ({MAX_TRANSITIONS})")
 
 
+def check_disk(
+    lake: Store | str, setup: str, modes: Iterable[str], world_seeds: Iterable[int], transitions: int
+) -> None:
+    """What `generate` would refuse for want of disk, refused by a caller that writes before it
+    (a study records itself first)."""
+    spec = get_setup(setup)
+    configs = [
+        GenConfig(setup, mode, seed, transitions, spec.default_shard_size) for seed in world_seeds for mode in modes
+    ]
+    _check_disk(check_lake(lake, create=False), configs, spec.bytes_per_transition, Share())
+
+
 def _check_disk(lake: Store, configs: list[GenConfig], bytes_per_transition: int, share: Share) -> None:
     """Refuse, before writing anything, a generation the disk cannot hold: the estimate counts only
     the shards not yet present (a resume needs little), with a margin for the files around them.
-    Object storage has no such limit to check."""
+    One listing per dataset, never a request per shard: a dataset may have millions. Object storage
+    has no such limit to check."""
     free = lake.free_bytes()
     if free is None:
         return
-    missing = 0
-    for cfg in configs:
-        folder = lake.child(cfg.dataset_id)
-        for i in range(cfg.n_shards):
-            if share.owns(i) and not folder.exists(part_file(i)):
-                lo, hi = cfg.shard_range(i)
-                missing += hi - lo
+    missing = sum(_missing_transitions(cfg, lake.child(cfg.dataset_id), share) for cfg in configs)
     needed = int(missing * bytes_per_transition * 1.1) + (len(configs) << 20)
     if needed > free:
         raise SmspaceError(
             f"the disk of {lake} has {free / 2**20:.0f} MiB free; this generation needs about {needed / 2**20:.0f} MiB"
         )
+
+
+def _missing_transitions(cfg: GenConfig, folder: Store, share: Share) -> int:
+    """Transitions of the shards `share` owns that are not stored yet, counted without a loop over
+    the shards: every shard holds shard_size transitions but the last."""
+    owned, last = range(share.rank, cfg.n_shards, share.world_size), cfg.n_shards - 1
+    short = cfg.shard_size - _shard_length(cfg, last) if last in owned else 0
+    present = {int(m[1]) for name in folder.fingerprints("shard-*.mcap") if (m := SHARD_FILE.fullmatch(name))}
+    return len(owned) * cfg.shard_size - short - sum(_shard_length(cfg, i) for i in present if i in owned)
+
+
+SHARD_FILE = re.compile(r"shard-(\d{5,})\.mcap")
+
+
+def _shard_length(cfg: GenConfig, i: int) -> int:
+    lo, hi = cfg.shard_range(i)
+    return hi - lo
 
 
 def generate(
@@ -292,10 +317,11 @@ def generate(
     with contextlib.ExitStack() as held:
         probe = world_seeds[0] if world_seeds else None  # the setup contract on a probe batch, before any write
         run_parts = held.enter_context(open_executor(executor, setup, options, probe))
-        lake = check_lake(lake)
+        lake = check_lake(lake, create=False)
         sizes = transitions, shard_size
         configs = [GenConfig(setup, mode, seed, *sizes, plugin=record) for seed in world_seeds for mode in modes]
         _check_disk(lake, configs, spec.bytes_per_transition, share)
+        check_lake(lake)
         if share.whole:  # one generator per dataset: a second command waits, then finds it done
             for cfg in sorted(configs, key=lambda c: c.dataset_id):
                 busy = f"another smgen is generating {cfg.dataset_id}"

@@ -21,6 +21,7 @@ from smspace.common import plugins
 from smspace.common.cli import default_workers
 from smspace.common.errors import SmspaceError, one_line
 from smspace.common.progress import duration
+from smspace.datagen.generate import check_disk
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import draw_transitions, get_setup, setup_plugin
 from smspace.datagen.setups.contract import check_world
@@ -95,6 +96,8 @@ def run_study(
     check_apart(out, lake)
     combos = combinations(study, out)
     checked = [check_terms(c.plan, c.out, overwrite) for c in combos]  # every refusal before any write
+    for setup in dict.fromkeys(c.plan.setup for c in combos):
+        check_disk(lake, setup, study.modes, study.world_seeds, combos[0].plan.n_transitions)
     for line in study_changes(study, out, overwrite):
         notify(line)
     for _, change in checked:
@@ -135,12 +138,17 @@ def study_changes(study: StudyFile, out: Store, overwrite: bool) -> list[str]:
         raise SmspaceError(
             f"{out.url}/{RECORD} is unreadable ({one_line(e, with_type=True)}); pass --overwrite"
         ) from None
+    if recorded.get("name") != study.name:  # another study's folder, not this one's past
+        raise SmspaceError(
+            f"{out.url} holds the study {recorded.get('name')!r}, not {study.name!r}: choose another --out "
+            "(or --overwrite to replace it)"
+        )
     if not diff:
         return []
     lines = [f"the study in {out.url} changed since it last ran: {'; '.join(diff)}"]
     if before is not None:
         now = {folder_name(c) for c in study.combinations()}
-        gone = [name for name in before_names if name not in now]
+        gone = [name or "(the runs without a grid)" for name in before_names if name not in now]
         if gone:
             lines.append(f"no longer in the study (their runs are kept, not trained): {', '.join(gone)}")
     return lines
@@ -231,6 +239,7 @@ def dry_run(
             f"  {label}: {len(states)} runs, {run_steps} run-steps to train, {per_step * 1e3:.3g} ms per run-step "
             f"in ensembles of {size} measured now, {duration(seconds)} on {workers} worker(s)"
         )
+    _refuse_what_the_disks_cannot_hold(lake, gen_bytes, out, total_bytes)
     lines.append(f"runs: {counts['new']} new, {counts['resume']} to resume, {counts['finished']} finished")
     lines.append(f"disk: about {_size(gen_bytes)} in the lake and {_size(total_bytes)} of run folders")
     lines.append(
@@ -238,6 +247,22 @@ def dry_run(
     )
     lines.append("dry run: nothing was written")
     return lines
+
+
+def _refuse_what_the_disks_cannot_hold(lake: Store, lake_bytes: float, out: Store, run_bytes: float) -> None:
+    """A budget of what cannot be stored is no plan: generation would refuse it (its own disk
+    check), and run folders would fill their disk part-way. Object storage has no such limit."""
+    lake_free, out_free = lake.free_bytes(), out.free_bytes()
+    if lake_free is not None and lake_bytes > lake_free:
+        raise SmspaceError(
+            f"this study needs about {_size(lake_bytes)} of datasets; the disk of {lake.url} has "
+            f"{_size(lake_free)} free (generation would refuse it)"
+        )
+    if out_free is not None and run_bytes > out_free:
+        raise SmspaceError(
+            f"this study needs about {_size(run_bytes)} of run folders; "
+            f"the disk of {out.url} has {_size(out_free)} free"
+        )
 
 
 def _dataset_id(setup: str, mode: str, seed: int) -> str:
@@ -296,8 +321,8 @@ def _ensemble_step_s(template: TrainConfig, n_motor: int, n_sensor: int, runs: i
 
 
 def _size(n: float) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
-        if n < 1024 or unit == "TiB":
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
             return f"{n:.3g} {unit}" if unit != "B" else f"{int(n)} B"
         n /= 1024
-    return f"{n:.3g} TiB"
+    raise AssertionError("unreachable")

@@ -82,6 +82,59 @@ def test_unbounded_studies_are_refused_at_once(tmp_path, text, needle):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["study.toml"]
 
 
+def test_a_study_no_disk_here_can_hold_is_refused_not_budgeted(tmp_path):
+    """The dry run budgeted impossible studies ("1.34e+08 TiB" of datasets, rc 0); generation
+    would refuse them. Now the dry run and the run refuse them alike, before writing anything."""
+    study = tmp_path / "study.toml"
+    study.write_text('[study]\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 1099511627776\n[train]\nsteps = 20\n')
+    lake, out = tmp_path / "lake", tmp_path / "runs"
+    for dry in (["--dry-run"], []):
+        line = one_error(run_cmd("smtrain", "sweep", study, "--lake", lake, "--out", out, *dry, timeout=120))
+        assert "of datasets; the disk of" in line or "this generation needs about" in line, line
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["study.toml"]
+
+
+def test_a_run_stopped_before_its_first_checkpoint_is_told_what_works(tmp_path):
+    """Killed before the first checkpoint (fit on S3, DDP), the launcher advised --resume, which
+    said there was no checkpoint, and the original command said "already holds a run": only
+    --overwrite worked. Every one of them now says so."""
+    from smspace.train.run_dir import CHECKPOINT, METRICS, after_a_stop
+
+    out = tmp_path / "run"
+    command = ["smtrain", "fit", "grid-seed0-MM", "--lake", SAMPLES, "--steps", 20, "--eval-every", 10, "--out", out]
+    assert run_cmd(*command).returncode == 0
+    (out / CHECKPOINT).unlink()  # what a kill before the first checkpoint leaves: the run's config
+    (out / METRICS).unlink()
+    assert "--overwrite" in after_a_stop(str(out), 2) and "--resume" not in after_a_stop(str(out), 2)
+    again = one_error(run_cmd(*command))
+    assert "stopped before its first checkpoint: pass --overwrite" in again, again
+    resumed = one_error(run_cmd("smtrain", "fit", "--resume", out))
+    assert "no checkpoint to resume from" in resumed and "--overwrite" in resumed, resumed
+    assert run_cmd(*command, "--overwrite").returncode == 0
+    assert "smtrain fit --resume" in after_a_stop(str(out)) and "step 20" in after_a_stop(str(out))
+
+
+def test_a_study_of_another_name_does_not_take_over_a_study_s_folder(tmp_path):
+    """A study of another name took over a study's folder with only a notice; the first study's
+    re-run then said "no longer in the study:" followed by nothing."""
+    body = '[study]\nname = "{name}"\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 3000\n'
+    body += "[train]\nsteps = 20\neval_every = 10\n"
+    lake, out = tmp_path / "lake", tmp_path / "runs"
+    first, other = tmp_path / "a.toml", tmp_path / "b.toml"
+    first.write_text(body.format(name="a"))
+    other.write_text(body.format(name="b") + "[grid]\nn_h = [3]\n")
+    assert run_cmd("smtrain", "sweep", first, "--lake", lake, "--out", out, "--workers", 1).returncode == 0
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    line = one_error(run_cmd("smtrain", "sweep", other, "--lake", lake, "--out", out, "--dry-run"))
+    assert "holds the study 'a', not 'b'" in line, line
+    line = one_error(run_cmd("smtrain", "sweep", other, "--lake", lake, "--out", out))
+    assert "holds the study 'a', not 'b'" in line and sorted(p.relative_to(out) for p in out.rglob("*")) == before
+    first.write_text(body.format(name="a") + "[grid]\nn_h = [3]\n")  # the same study, given a grid
+    grown = run_cmd("smtrain", "sweep", first, "--lake", lake, "--out", out, "--workers", 1)
+    assert grown.returncode == 0, grown.stderr
+    assert "no longer in the study (their runs are kept, not trained): (the runs without a grid)" in grown.stderr
+
+
 def test_a_study_file_read_from_a_pipe_is_recorded_as_given(tmp_path):
     """`smtrain sweep <(cat study.toml)` trained but recorded an empty study-file.toml (read twice)."""
     import subprocess
