@@ -4,6 +4,7 @@ this process adds them up into one line (runs finished / running, run-steps per 
 
 from __future__ import annotations
 
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -23,6 +24,7 @@ class StudyMonitor:
         self.at = {key: start for key, (_, start, _) in chunks.items()}
         total = sum(runs * (end - start) for runs, start, end in chunks.values())
         self.runs = sum(runs for runs, _, _ in chunks.values())
+        self.said: set[str] = set()
         self.bar = Progress("study", total, "run-step", enabled=enabled and total > 0)
         self._show()
 
@@ -42,7 +44,12 @@ class StudyMonitor:
 
     def poll(self, channel: Any) -> None:
         for key, step in drain_channel(channel):
-            self.heard(key, step)
+            if isinstance(step, str):  # a worker's note (train/precision.py): said once per study
+                if step not in self.said:
+                    self.said.add(step)
+                    print(step, file=sys.stderr, flush=True)
+            else:
+                self.heard(key, step)
         self._show()
 
     def close(self) -> None:

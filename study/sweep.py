@@ -24,12 +24,13 @@ from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.catalog import check_lake
 from smspace.lake.manifest import load_manifest
-from smspace.lake.store import Store, open_store, within
+from smspace.lake.store import StorageUnreachable, Store, open_store, within
 from smspace.study.monitor import StudyMonitor, monitored
 from smspace.train.config import TrainConfig, available_memory, memory_needed
 from smspace.train.contract import check_model
 from smspace.train.ensemble import train_ensemble
 from smspace.train.loop import resolve_device
+from smspace.train.precision import say_notes_through
 from smspace.train.run_dir import CONFIG, RunDir
 from smspace.train.terms import HISTORY, STUDY, differing, study_template, terms
 
@@ -54,6 +55,8 @@ def study_record(out: Store) -> dict[str, Any] | None:
         return record
     except FileNotFoundError:
         return None
+    except StorageUnreachable:
+        raise  # not "unreadable": --overwrite would be the wrong advice
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError, SmspaceError) as e:
         raise SmspaceError(
             f"{out.url}/{STUDY} is unreadable ({one_line(e, with_type=True)}); pass --overwrite to start anew"
@@ -283,6 +286,8 @@ def train_chunk(paths: list[str], resume: bool, threads: int, channel: Any = Non
     """One ensemble, wherever it runs (this process, a spawned one, a Ray worker); returns its size.
     Its step goes on `channel` about every second (study/monitor.py)."""
     runs = [RunDir.open(p) for p in paths]
+    if channel is not None:
+        say_notes_through(lambda line: _put(channel, (key, line)))
     train_ensemble(runs, resume=resume, threads=threads, progress=False, on_step=_reporter(channel, key))
     return len(runs)
 
@@ -296,12 +301,18 @@ def _reporter(channel: Any, key: str) -> Callable[[int], None] | None:
 
     def report(step: int) -> None:
         if alive[0]:
-            try:
-                channel.put((key, step))
-            except Exception:  # a dead manager raises several kinds (EOFError, ConnectionError, OSError…)
-                alive[0] = False
+            alive[0] = _put(channel, (key, step))
 
     return report
+
+
+def _put(channel: Any, message: tuple[str, int | str]) -> bool:
+    """False when the channel is gone (its manager process killed): progress is a courtesy."""
+    try:
+        channel.put(message)
+    except Exception:  # a dead manager raises several kinds (EOFError, ConnectionError, OSError…)
+        return False
+    return True
 
 
 def _mark_stopped(runs: list[RunDir], state: str, line: str) -> None:

@@ -136,11 +136,34 @@ def test_a_rank_killed_outright_is_named_in_one_line_and_in_the_status(tmp_path,
     finally:
         stop_group(proc)
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
-    expected = f"smtrain: error: rank {victim} (pid {ranks[victim]}) was killed by SIGKILL; the run keeps its last"
+    expected = f"smtrain: error: rank {victim} (pid {ranks[victim]}) was killed by SIGKILL; its checkpoint of step"
     assert proc.returncode == 137 and len(lines) == 1 and lines[0].startswith(expected), stderr
     assert lines[0].endswith(f"smtrain fit --resume {out} --nproc 2")
     status = RunDir.open(out).status()
     assert status["state"] == "failed" and status["message"] == lines[0].removeprefix("smtrain: error: ")
+
+
+@pytest.mark.parametrize("target", ["launcher", "rank 0", "rank 1"])
+def test_sigterm_to_a_two_rank_run_says_interrupted_once(tmp_path, target):
+    """SIGTERM to the launcher printed its interrupted line twice (rank 0's and the launcher's)."""
+    import psutil
+
+    out = tmp_path / "run"
+    proc = fit(DATASET, "--nproc", 2, "--steps", 100000, "--eval-every", 50, "--out", out)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoint.pt").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.2)
+        ranks = {int(p.environ()["RANK"]): p.pid for p in psutil.Process(proc.pid).children()}
+        os.kill(proc.pid if target == "launcher" else ranks[int(target[-1])], signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        stop_group(proc)
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("interrupted"), stderr
+    assert "is kept: smtrain fit --resume" in lines[0] and lines[0].endswith(f"{out} --nproc 2"), stderr
+    assert RunDir.open(out).status()["state"] == "interrupted"
 
 
 @pytest.mark.parametrize(

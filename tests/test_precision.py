@@ -61,3 +61,17 @@ def test_compile_reports_its_time_and_a_broken_compiler_falls_back_in_one_line(t
     compiled, eager = RunDir.open(tmp_path / "compiled").metrics(), RunDir.open(tmp_path / "broken").metrics()
     for a, b in zip(compiled, eager, strict=True):  # fused kernels sum in another order: the same run, to rounding
         assert a["eval_loss"] == pytest.approx(b["eval_loss"], rel=1e-3), (a, b)
+
+
+def test_a_sweep_without_a_compiler_says_so_once_not_once_per_worker(tmp_path):
+    """A --compile sweep on a machine without a working compiler printed its line once per worker."""
+    sweep = ["sweep", "--setup", "grid", "--modes", "MM,MME", "--worlds", 1, "--transitions", 2500, "--steps", 20,
+             "--eval-every", 10, "--lake", tmp_path / "lake", "--out", tmp_path / "runs", "--workers", 2,
+             "--compile"]  # fmt: skip
+    env = {"CXX": "/bin/false", "TORCHINDUCTOR_CACHE_DIR": str(tmp_path / "cache")}
+    result = run_cmd("smtrain", *sweep, env=env, timeout=600)
+    assert result.returncode == 0, result.stderr
+    fallback = [ln for ln in result.stderr.splitlines() if ln.startswith("--compile:")]
+    assert len(fallback) == 1 and "training eagerly" in fallback[0], result.stderr
+    sessions = [RunDir.open(p.parent).config.sessions[-1] for p in (tmp_path / "runs").glob("*/config.json")]
+    assert len(sessions) == 2 and all(s["compile"].startswith("eager:") for s in sessions), sessions

@@ -69,7 +69,15 @@ def main() -> None:
 def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     """Train on DATASET (a folder or an id in the lake); prints the final metrics. Under torchrun,
     one run on all its processes (DDP); --batch-size is then the global batch."""
-    from smspace.train.distributed import PEER_LOST, STORE_ENV, PeerLost, all_ok, join_from_environment, leave
+    from smspace.train.distributed import (
+        INTERRUPTED,
+        PEER_LOST,
+        STORE_ENV,
+        PeerLost,
+        all_ok,
+        join_from_environment,
+        leave,
+    )
     from smspace.train.fit import fit as run_fit
     from smspace.train.fit import plan_fit
     from smspace.train.launch import launch_local
@@ -96,8 +104,13 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
             run, problem = _attempt(plan.start)
         if not all_ok(problem is None, ranks):  # no rank waits forever for a rank 0 that gave up
             raise problem or SmspaceError("rank 0 could not prepare the run folder (see its error)")
-        with _resume_hint(plan.where, ranks.world) if ranks.primary else contextlib.nullcontext():
+        speaks = ranks.primary and STORE_ENV not in os.environ  # under --nproc the launcher says it, once
+        with _resume_hint(plan.where, ranks.world) if speaks else contextlib.nullcontext():
             result = run_fit(plan.cfg, run or RunDir(plan.where), resume=plan.resume, ranks=ranks)
+    except KeyboardInterrupt:
+        if STORE_ENV in os.environ:
+            sys.exit(INTERRUPTED)  # the run's status says it; the launcher prints the line
+        raise
     except PeerLost:
         if STORE_ENV in os.environ:  # under --nproc the launcher names the rank that died, in one line
             sys.exit(PEER_LOST)
@@ -125,14 +138,9 @@ def _resume_hint(where: str, world: int):
     try:
         yield
     except KeyboardInterrupt:
-        from smspace.common.bounded import run_within
-        from smspace.train.run_dir import RunDir
+        from smspace.train.run_dir import after_a_stop
 
-        steps: list[int] = []  # the step of the last evaluation, hence of the checkpoint (if the storage answers)
-        run_within([lambda: steps.append(RunDir.open(where).status()["step"])])
-        nproc = f" --nproc {world}" if world > 1 else ""
-        kept = "its last checkpoint is kept" if not steps else f"its checkpoint of step {steps[0]} is kept"
-        raise Interrupted(f"interrupted; {kept}: smtrain fit --resume {where}{nproc}") from None
+        raise Interrupted(f"interrupted; {after_a_stop(where, world)}") from None
 
 
 def _attempt(action):
@@ -305,8 +313,12 @@ def report(runs, out) -> None:
 
 def _listed(path: Path) -> dict:
     """A run's summary, or a "broken" row saying why it cannot be read: one bad run hides no other."""
+    from smspace.lake.store import StorageUnreachable
+
     try:
         return _run_summary(path)
+    except StorageUnreachable:
+        raise  # a frozen endpoint ends the listing, not one "broken" row per run
     except SmspaceError as e:
         empty = dict.fromkeys(("dataset_id", "n_h", "seed", "eval_loss", "d_topo", "d_metric", "elapsed_s"))
         where = display_name(str(getattr(path, "url", path)))
@@ -409,9 +421,12 @@ def _session_line(session: dict) -> str:
 def _dataset_software(where: str) -> dict | None:
     """The software its manifest records, or None where the dataset cannot be read from here."""
     from smspace.lake.manifest import load_manifest
+    from smspace.lake.store import StorageUnreachable
 
     try:
         return load_manifest(where).software
+    except StorageUnreachable:
+        raise
     except (SmspaceError, OSError):
         return None
 

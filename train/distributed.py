@@ -39,6 +39,7 @@ SINGLE = Ranks()
 
 
 STORE_ENV = "SMSPACE_DDP_STORE"  # host:port of the store `launch_local` hosts for its ranks
+INTERRUPTED = 130  # a rank's exit code when Ctrl-C or SIGTERM stopped it (its launcher says so, once)
 PEER_LOST = 3  # a rank's exit code when it only lost contact with another one (launch_local names the cause)
 
 

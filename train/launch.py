@@ -22,7 +22,7 @@ from functools import partial
 import torch.distributed as dist
 
 from smspace.common.cli import die_with_parent
-from smspace.train.distributed import PEER_LOST, STORE_ENV
+from smspace.train.distributed import INTERRUPTED, PEER_LOST, STORE_ENV
 
 GRACE_S = 5.0  # a rank that failed waits this long for rank 0 to fail the same way and say why
 
@@ -87,14 +87,20 @@ def launch_local(nproc: int, argv: list[str], where: str) -> int:
             for other, how in exits:
                 if other != 0 and how < 0 and how != -signal.SIGTERM:
                     print(f"smtrain: note: rank {other} ended with {_how(how)} as the run stopped", file=sys.stderr)
-        resume = f"smtrain fit --resume {where} --nproc {nproc}"
+        from smspace.train.run_dir import after_a_stop
+
+        if code == INTERRUPTED:  # a rank stopped by Ctrl-C or SIGTERM sent to it, not to this launcher
+            line = f"interrupted (rank {rank}); {after_a_stop(where, nproc)}"
+            print(line, file=sys.stderr)
+            _record_outcome(where, line, "interrupted")
+            return code
         if code < 0:  # died by a signal: nothing of it could speak or record its end
             killed = f"rank {rank} (pid {procs[rank].pid}) was killed by {_how(code)}"
-            line = f"{killed}; the run keeps its last checkpoint: {resume}"
+            line = f"{killed}; {after_a_stop(where, nproc)}"
             print(f"smtrain: error: {line}", file=sys.stderr)
-            _record_failure(where, line)
+            _record_outcome(where, line)
             return 128 - code
-        if rank != 0 and procs[0].returncode in (0, PEER_LOST, -signal.SIGTERM, 130):
+        if rank != 0 and procs[0].returncode in (0, PEER_LOST, -signal.SIGTERM, INTERRUPTED):
             errs[rank].seek(0)
             lines = [ln for ln in errs[rank].read().splitlines() if ln.strip()]
             print(
@@ -128,7 +134,7 @@ def _cause(exits: list[tuple[int, int]]) -> tuple[int, int] | None:
     """The failure that stopped the run: the first one that is not only a lost contact (a rank
     whose peer died) nor our own SIGTERM to the ranks left running."""
     failures = [(r, c) for r, c in exits if c != 0]
-    own = [(r, c) for r, c in failures if c not in (PEER_LOST, -signal.SIGTERM, 130)]
+    own = [(r, c) for r, c in failures if c not in (PEER_LOST, -signal.SIGTERM, INTERRUPTED)]
     said = [(r, c) for r, c in own if r == 0 and c > 0]  # rank 0 failed by itself (a lost peer would
     # be PEER_LOST) and said why; another rank dying as the group came down did not cause it
     return (said or own or failures or [None])[0]
@@ -139,13 +145,14 @@ def _how(code: int) -> str:
     return signal.Signals(-code).name if code < 0 else f"code {code}"
 
 
-def _record_failure(where: str, line: str) -> None:
-    """The run's status, which a rank killed outright never wrote (best effort, within seconds)."""
+def _record_outcome(where: str, line: str, state: str = "failed") -> None:
+    """The run's status, which a rank killed outright never wrote, or which a rank that lost its
+    interrupted peer wrote as its own failure (best effort, within seconds)."""
     from smspace.common.bounded import run_within
     from smspace.train.run_dir import RunDir
 
     def mark() -> None:
         run = RunDir.open(where)
-        run.set_status("failed", run.status()["step"], line)
+        run.set_status(state, run.status()["step"], line)
 
     run_within([mark])

@@ -79,13 +79,20 @@ def compiled(fn: Callable, enabled: bool, say: Callable[[str], None] | None = No
     if decision != "torch.compile":
         if not _checked.get("said"):
             _checked["said"] = "yes"
-            say = say or (lambda line: print(line, file=sys.stderr, flush=True))
+            say = say or (_notes[0] if _notes else lambda line: print(line, file=sys.stderr, flush=True))
             say(f"--compile: {decision.removeprefix('eager: ')}; training eagerly (recorded in config.json)")
         return fn
     return torch.compile(fn)
 
 
 _checked: dict[str, str | None] = {}
+_notes: list[Callable[[str], None]] = []
+
+
+def say_notes_through(say: Callable[[str], None]) -> None:
+    """Where this process says its --compile line: a sweep's workers hand it to the study's
+    monitor, which says each line once for the whole sweep, not once per worker."""
+    _notes[:] = [say]
 
 
 def _compile_problem() -> str | None:

@@ -26,7 +26,7 @@ from smspace.common import provenance
 from smspace.common.errors import SmspaceError
 from smspace.common.locks import HeldLock
 from smspace.lake import parquet
-from smspace.lake.store import Store, WriteConflict, open_store
+from smspace.lake.store import StorageUnreachable, Store, WriteConflict, open_store
 from smspace.train import tensorboard
 from smspace.train.config import TrainConfig
 from smspace.train.precision import compile_decision
@@ -166,6 +166,9 @@ class RunDir:
         cfg = replace(cfg, run_id=uuid.uuid4().hex)  # an id, not a draw: nothing computed depends on it
         try:
             run._write(CONFIG, _config_bytes(cfg))  # create-only: of two processes creating it, one wins
+        except StorageUnreachable:
+            run.release()
+            raise
         except SmspaceError:
             run.release()
             raise SmspaceError(
@@ -181,6 +184,10 @@ class RunDir:
         if run.store.is_file():
             raise SmspaceError(f"output {run.path} is a file, not a folder")
         if run.store.exists(CONFIG) and not overwrite:
+            if not run.store.exists(CHECKPOINT):
+                raise SmspaceError(
+                    f"{run.path} holds a run stopped before its first checkpoint: pass --overwrite to start it again"
+                )
             raise SmspaceError(f"{run.path} already holds a run: pass --resume to continue it or --overwrite")
         if not overwrite and any(name != LOCK for name in run.store.entries()):
             raise SmspaceError(f"{run.path} is not empty and holds no run; choose another --out")
@@ -398,7 +405,10 @@ class RunDir:
         try:
             data = self._read(CHECKPOINT)
         except FileNotFoundError:
-            raise SmspaceError(f"{self.path} has no checkpoint to resume from") from None
+            raise SmspaceError(
+                f"{self.path} has no checkpoint to resume from (stopped before its first): "
+                "run the command that created it with --overwrite"
+            ) from None
         self._last_checkpoint = data
         return self._loaded(data, f"{self.path}/{CHECKPOINT}", device)
 
@@ -449,3 +459,24 @@ def _npy_bytes(x: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.save(buf, np.ascontiguousarray(x), allow_pickle=False)
     return buf.getvalue()
+
+
+def after_a_stop(where: str, world: int = 1) -> str:
+    """What a run stopped part-way keeps, and the command that goes on from there. Stopped before
+    its first checkpoint, --resume has nothing to start from and the original command refuses the
+    folder (it holds a run's config): only --overwrite works, so that is what is said. The storage
+    is asked within a few seconds: it may be what failed."""
+    from smspace.common.bounded import run_within
+
+    found: list[tuple[bool, int]] = []
+
+    def look() -> None:
+        run = RunDir.open(where)
+        found.append((run.store.exists(CHECKPOINT), int(run.status().get("step", 0))))
+
+    run_within([look])
+    nproc = f" --nproc {world}" if world > 1 else ""
+    if found and not found[0][0]:
+        return "it stopped before its first checkpoint, so nothing is kept: run the same command with --overwrite"
+    kept = f"its checkpoint of step {found[0][1]} is kept" if found else "its last checkpoint is kept"
+    return f"{kept}: smtrain fit --resume {where}{nproc}"
