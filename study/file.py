@@ -267,7 +267,7 @@ def _train_value(fields_by_name: dict[str, Field], key: str, value: Any, bad, wh
     if isinstance(default, int):
         return _integer(value, bad, where, f.metadata["min"], f.metadata["max"])
     if key == "model":
-        from smspace.train.model import model_names
+        from smspace.train.config import model_names
 
         if value not in model_names():
             raise bad(where, f"unknown model {value!r} (one of {', '.join(model_names())})")

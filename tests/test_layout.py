@@ -88,3 +88,21 @@ def test_only_smspace_is_a_top_level_package():
         for name in imported_modules(path):
             head = name.split(".")[0]
             assert head not in ("common", "lake", "datagen", "train", "metrics", "schemas", "study"), (path, name)
+
+
+def test_the_command_line_starts_without_torch():
+    """`smtrain --help`, `--version` and every Tab took 3-4 s: torch was imported to build the flags.
+    Counted in modules, not seconds (benchmarks/bench_startup.py measures the time)."""
+    probe = (
+        "import sys\n"
+        "from smspace.train.cli import main as smtrain\n"
+        "from smspace.datagen.cli import main as smgen\n"
+        "for main in (smtrain, smgen):\n"
+        "    try:\n"
+        "        main(['--help'], standalone_mode=False)\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "print(sorted(m for m in sys.modules if m == 'torch' or m.startswith('torch.'))[:3])\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip().splitlines()[-1] == "[]", done.stdout + done.stderr

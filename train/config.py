@@ -12,16 +12,17 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-import torch
-
+from smspace.common import plugins
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import canonical
 from smspace.lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
 from smspace.lake.store import Store, open_store
-from smspace.train.model import DEFAULT_MODEL, build_model, plugin_record
-from smspace.train.model import parameter_count as count_parameters
-from smspace.train.precision import PRECISIONS
-from smspace.train.precision import resolve as resolve_precision
+
+# torch, the networks and the precision probe are imported where they are used: the command line
+# builds its flags from this module, and `smtrain --help` or a Tab must not wait for torch
+DEFAULT_MODEL = "sensorimotor"
+ENTRY_POINTS = "smspace.models"  # where packages register networks of their own (docs/API.md)
+PRECISIONS = ("fp32", "bf16", "auto")
 
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
@@ -103,7 +104,9 @@ class TrainConfig:
             raise SmspaceError(f"--precision {self.precision!r}: one of {', '.join(PRECISIONS)}")
         self.precision_asked = self.precision_asked or self.precision
         if self.precision == "auto":  # decided once, here; the run records what was asked and decided
-            self.precision = resolve_precision(self.precision, self.device)[0]
+            from smspace.train.precision import resolve
+
+            self.precision = resolve(self.precision, self.device)[0]
 
     @property
     def run_name(self) -> str:
@@ -121,6 +124,8 @@ class TrainConfig:
     def for_setup(self, setup: str, transitions: int, encoder_layers: Sequence[int]) -> TrainConfig:
         """This config for datasets of one setup and size: what a study's runs share; the encoder
         the setup suggests unless one was given."""
+        from smspace.train.model import plugin_record
+
         encoder = self.encoder_layers or encoder_layers
         return replace(
             self,
@@ -154,6 +159,11 @@ def default_encoder_layers(manifest) -> tuple[int, ...]:
     return PAPER_ENCODERS.get(manifest.n_motor, PAPER_ENCODERS[3])
 
 
+def model_names() -> tuple[str, ...]:
+    """Every model a run may name: the built-in one and the registered ones (not loaded)."""
+    return (DEFAULT_MODEL, *sorted(plugins.others(ENTRY_POINTS, "model", (DEFAULT_MODEL,))))
+
+
 def flag_fields() -> list:
     """The fields that are command-line flags, in declaration order."""
     return [f for f in fields(TrainConfig) if "help" in f.metadata]
@@ -161,6 +171,11 @@ def flag_fields() -> list:
 
 def parameter_count(cfg: TrainConfig, n_motor: int, n_sensor: int) -> int:
     """The run's model built on the meta device: its parameters counted, nothing allocated."""
+    import torch
+
+    from smspace.train.model import build_model
+    from smspace.train.model import parameter_count as count_parameters
+
     with torch.device("meta"):
         model = build_model(
             cfg.model, n_motor, n_sensor, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers, cfg.model_params

@@ -22,9 +22,7 @@ from torch import nn
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError
 from smspace.common.plugins import Plugin
-
-DEFAULT_MODEL = "sensorimotor"
-ENTRY_POINTS = "smspace.models"
+from smspace.train.config import DEFAULT_MODEL, ENTRY_POINTS, model_names
 
 
 class Dense(nn.Module):
@@ -85,11 +83,6 @@ class SensorimotorNet(nn.Module):
 def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Squared error summed over sensor components, averaged over the batch (not mse_loss)."""
     return (pred - target).pow(2).sum(dim=-1).mean(dim=-1)
-
-
-def model_names() -> tuple[str, ...]:
-    """Every model a run may name: the built-in one and the registered ones (not loaded)."""
-    return (DEFAULT_MODEL, *sorted(plugins.others(ENTRY_POINTS, "model", (DEFAULT_MODEL,))))
 
 
 @cache

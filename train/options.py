@@ -13,8 +13,7 @@ from typing import TYPE_CHECKING
 import click
 
 from smspace.common.completion import complete_devices
-from smspace.train.config import MAX_LAYERS, MAX_WIDTH
-from smspace.train.precision import PRECISIONS
+from smspace.train.config import MAX_LAYERS, MAX_WIDTH, PRECISIONS
 
 if TYPE_CHECKING:
     from smspace.train.config import TrainConfig
@@ -57,7 +56,7 @@ def _no_duplicate_keys(pairs: list[tuple[str, object]]) -> dict:
 
 
 def model_choices() -> tuple[str, ...]:
-    from smspace.train.model import model_names
+    from smspace.train.config import model_names
 
     return model_names()
 

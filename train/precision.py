@@ -18,7 +18,6 @@ import torch
 
 from smspace.common import provenance
 
-PRECISIONS = ("fp32", "bf16", "auto")
 NATIVE_BF16_FLAGS = ("amx_bf16", "avx512_bf16")
 # What the grid study in bf16 beside fp32 decided (docs/REPRODUCTION.md, "bf16"; 10 worlds x 100000
 # steps): every claim holds, but bf16's rounding floor sets the near-zero values the paper reports,
