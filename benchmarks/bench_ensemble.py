@@ -25,10 +25,10 @@ from old_ensemble import EnsembleNet
 
 from smspace.common.provenance import cpu
 from smspace.train.config import TrainConfig
+from smspace.train.engine import build, step_loss
 from smspace.train.ensemble import Stacked
-from smspace.train.fit import build
 from smspace.train.model import prediction_loss
-from smspace.train.precision import compiled, step_loss
+from smspace.train.precision import compiled
 
 
 def seconds_per_step(step, repeats: int, n: int) -> float:

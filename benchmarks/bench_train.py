@@ -17,7 +17,7 @@ import torch
 from smspace.datagen.generate import generate
 from smspace.lake.dataset import Dataset
 from smspace.train.config import TrainConfig
-from smspace.train.fit import build
+from smspace.train.engine import build
 from smspace.train.loader import TransitionStream
 from smspace.train.model import prediction_loss
 

@@ -1,5 +1,5 @@
 """A study's progress as a whole, from ensembles training in other processes or on Ray: each one
-puts (its key, its step) on the executor's channel about every second (train/loop.py, on_step);
+puts (its key, its step) on the executor's channel about every second (train/engine.py, on_step);
 this process adds them up into one line (runs finished / running, run-steps per second, ETA)."""
 
 from __future__ import annotations

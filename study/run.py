@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from smspace.common import plugins
-from smspace.common.cli import default_workers
+from smspace.common.cli import DEFAULT_MAX_ENSEMBLE, default_workers
 from smspace.common.errors import SmspaceError, one_line
 from smspace.common.progress import duration
 from smspace.datagen.generate import check_disk
@@ -29,7 +29,7 @@ from smspace.lake.manifest import GenConfig
 from smspace.lake.store import Store, open_store
 from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study, read_study
 from smspace.study.sweep import SweepPlan, check_apart, check_terms, ensembles, prepare, run_ensembles
-from smspace.train.config import TrainConfig, parameter_count
+from smspace.train.config import RUNS, TrainConfig, parameter_count
 from smspace.train.run_dir import CONFIG, RunDir
 from smspace.train.terms import terms
 
@@ -88,11 +88,11 @@ def run_study(
 ) -> list[RunDir]:
     """Run (or resume, or extend) a study file; arguments given here override its [run] section."""
     study, source = read_study(path)
-    out = open_store(out if out is not None else f"runs/{study.name}")
+    out = open_store(out if out is not None else f"{RUNS}/{study.name}")
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = gen_workers or study.run.get("gen_workers", workers)
     executor = executor or study.run.get("executor", "local")
-    max_ensemble = study.run.get("max_ensemble", 150)
+    max_ensemble = study.run.get("max_ensemble", DEFAULT_MAX_ENSEMBLE)
     check_apart(out, lake)
     combos = combinations(study, out)
     checked = [check_terms(c.plan, c.out, overwrite) for c in combos]  # every refusal before any write
@@ -180,10 +180,10 @@ def dry_run(
     """The lines of a dry run: datasets to generate, runs (new / to resume / finished), the disk
     they need and the time they take at rates measured here and now. Writes nothing."""
     study = load_study(path)
-    out = open_store(out if out is not None else f"runs/{study.name}")
+    out = open_store(out if out is not None else f"{RUNS}/{study.name}")
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = study.run.get("gen_workers", workers)
-    max_ensemble = study.run.get("max_ensemble", 150)
+    max_ensemble = study.run.get("max_ensemble", DEFAULT_MAX_ENSEMBLE)
     check_apart(out, lake)
     combos = combinations(study, out)
     for combo in combos:
@@ -292,24 +292,23 @@ def _ensemble_step_s(template: TrainConfig, n_motor: int, n_sensor: int, runs: i
     """Seconds of one training step of an ensemble of `runs` of this network in its precision
     (eager: a compiled step would cost its compilation here), on random batches, with the threads
     a run is given."""
-    from smspace.train.ensemble import Stacked
-    from smspace.train.fit import build
-    from smspace.train.precision import step_loss
+    from smspace.train.engine import EnsembleLearner, EvalData
 
     before = torch.get_num_threads()
     torch.set_num_threads(template.threads)
     try:
         cpu = torch.device("cpu")
-        stacked = Stacked([build(replace(template, seed=i), n_motor, n_sensor, cpu)[0] for i in range(runs)])
-        opt = torch.optim.Adam(stacked.parameters(), lr=1e-3, fused=True)
-        loss = step_loss(stacked.forward, template.precision, cpu)
-        xs = [torch.rand(runs, template.batch_size, k) * 2 - 1 for k in (n_motor, n_sensor, n_motor, n_sensor)]
+
+        def rand(*shape: int) -> torch.Tensor:
+            return torch.rand(*shape) * 2 - 1
+
+        cfgs = [replace(template, seed=i, compile=False) for i in range(runs)]
+        data = [EvalData(rand(1, n_motor), np.zeros((1, 2)), *(rand(1, k) for k in (n_motor, n_sensor) * 2))] * runs
+        learner = EnsembleLearner(cfgs, n_motor, n_sensor, data, cpu)  # the sweep's own step
+        batch = tuple(rand(template.batch_size, k) for k in (n_motor, n_sensor) * 2)
 
         def step() -> None:
-            total = loss(*xs).sum()
-            opt.zero_grad(set_to_none=True)
-            total.backward()
-            opt.step()
+            learner.train_step([batch] * runs)
 
         step()
         t = time.perf_counter()

@@ -17,6 +17,7 @@ import numpy as np
 
 from smspace.common import plugins
 from smspace.common.bounded import run_within
+from smspace.common.cli import DEFAULT_MAX_ENSEMBLE
 from smspace.common.errors import SmspaceError, one_line
 from smspace.common.executors import WorkerDied, import_ray, open_executor
 from smspace.datagen.generate import generate
@@ -28,8 +29,8 @@ from smspace.lake.store import StorageUnreachable, Store, open_store, within
 from smspace.study.monitor import StudyMonitor, monitored
 from smspace.train.config import TrainConfig, available_memory, memory_needed
 from smspace.train.contract import check_model
-from smspace.train.ensemble import train_ensemble
-from smspace.train.loop import resolve_device
+from smspace.train.engine import resolve_device
+from smspace.train.fit import train_ensemble
 from smspace.train.precision import say_notes_through
 from smspace.train.run_dir import CONFIG, RunDir
 from smspace.train.terms import HISTORY, STUDY, differing, study_template, terms
@@ -152,7 +153,7 @@ def sweep(
     out: Store | Path | str,
     transitions: int | None = None,
     gen_workers: int = 1,
-    max_ensemble: int = 150,
+    max_ensemble: int = DEFAULT_MAX_ENSEMBLE,
     overwrite: bool = False,
     executor: str = "local",
     workers: int = 1,
@@ -249,7 +250,7 @@ def prepare(
     chunks = []
     for group in study_ensembles(out, [run for run, _ in plans], max_ensemble, workers):
         todo = [run for run in group if at[run.name] < run.config.steps]
-        if todo:  # resumed from the step all members reached (train/loop.py, resume_members)
+        if todo:  # resumed from the step all members reached (train/fit.py, resume_from_folders)
             chunks.append((todo, min(at[run.name] for run in todo) > 0))
     return [run for run, _ in plans], chunks
 

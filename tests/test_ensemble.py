@@ -11,10 +11,9 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from smspace.train.cli import main as smtrain_main
+from smspace.study.cli import main as smtrain_main
 from smspace.train.config import TrainConfig
-from smspace.train.ensemble import train_ensemble
-from smspace.train.fit import fit
+from smspace.train.fit import fit, train_ensemble
 from smspace.train.run_dir import RunDir
 
 from .conftest import SAMPLES
@@ -58,8 +57,8 @@ def test_a_run_inside_an_ensemble_is_the_run_trained_alone(tmp_path):
 @pytest.mark.numerical
 def test_an_ensemble_starts_from_the_lone_runs_weights_and_repeats_bit_for_bit(tmp_path):
     """Exact where the computation is the same: the initial weights, and the same ensemble re-run."""
+    from smspace.train.engine import build
     from smspace.train.ensemble import Stacked
-    from smspace.train.fit import build
 
     cfgs = [config("MEM", 11, steps=20), config("MME", 13, steps=20)]
     lone = [build(replace(c, encoder_layers=[150, 100, 50]), 3, 4, torch.device("cpu"))[0] for c in cfgs]

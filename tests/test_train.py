@@ -18,7 +18,7 @@ import torch
 from click.testing import CliRunner
 
 from smspace.metrics import spatial_scores
-from smspace.train.cli import main as smtrain_main
+from smspace.study.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 
 from .conftest import BIN, SAMPLES
@@ -72,7 +72,7 @@ def test_short_run_learns_and_writes_a_complete_run_folder(tmp_path):
 def test_model_defaults_are_the_paper_s(tmp_path):
     from smspace.datagen.setups import get_setup
     from smspace.train.config import TrainConfig
-    from smspace.train.fit import build
+    from smspace.train.engine import build
 
     def paper(setup: str) -> TrainConfig:
         return TrainConfig(dataset="x", encoder_layers=list(get_setup(setup).encoder_layers))
@@ -96,7 +96,7 @@ def test_model_defaults_are_the_paper_s(tmp_path):
 
 def test_learning_rate_schedule():
     from smspace.train.config import TrainConfig
-    from smspace.train.loop import learning_rate
+    from smspace.train.engine import learning_rate
 
     cfg = TrainConfig(dataset="x")
     assert cfg.lr_decay_steps == 80_000
@@ -303,7 +303,7 @@ def test_sweep_modes_all_is_every_mode(tmp_path):
 def test_a_ray_sweep_without_ray_says_so_before_generating(tmp_path):
     code = (
         "import sys; sys.modules['ray'] = None\n"  # as if the cluster extra were not installed
-        "from smspace.train.cli import main\n"
+        "from smspace.study.cli import main\n"
         f"sys.argv = ['smtrain', 'sweep', '--setup', 'grid', '--worlds', '1', '--executor', 'ray', "
         f"'--lake', {str(tmp_path / 'lake')!r}, '--out', {str(tmp_path / 'runs')!r}]\n"
         "main()\n"
@@ -367,7 +367,7 @@ def test_ctrl_c_of_a_sweep_says_the_same_command_resumes_it(tmp_path):
 
 def test_a_run_resumed_from_its_step_0_checkpoint_records_step_0_once(tmp_path, monkeypatch):
     from smspace.train.config import TrainConfig
-    from smspace.train.fit import SingleLearner
+    from smspace.train.engine import SingleLearner
     from smspace.train.fit import fit as run_fit
 
     ds = SAMPLES / "grid-seed0-MM"
@@ -394,7 +394,7 @@ def test_a_checkpoint_of_smspace_0_1_resumes_bit_identical(tmp_path, monkeypatch
     from dataclasses import replace
 
     from smspace.train.config import TrainConfig
-    from smspace.train.fit import SingleLearner
+    from smspace.train.engine import SingleLearner
     from smspace.train.fit import fit as run_fit
 
     ds = SAMPLES / "grid-seed0-MME"

@@ -1,43 +1,37 @@
-"""`smtrain fit`: one run of the sensorimotor predictive network (docs/MODEL.md §3).
+"""Runs in run folders, trained by the engine: `smtrain fit` (one run) and a sweep's ensembles.
 
-Evaluates at step 0 and every `eval_every` steps and checkpoints right after, so `--resume`
-continues from the last evaluation and ends bit-identical to an uninterrupted run on the CPU.
-The loop itself is `train.loop`; this file is the lone model behind it.
+Each is: plan (every check before anything is written), open the run folder (claim it, record
+the session), then call the engine (train/engine.py) with the run's data and the folder as its
+sink. The engine evaluates at step 0 and every `eval_every` steps and the folder checkpoints right
+after, so `--resume` continues from the last evaluation and ends bit-identical to an uninterrupted
+run on the CPU.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import torch
-from torch.nn.parallel import DistributedDataParallel
 
+from smspace.common.bounded import run_within
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
+from smspace.lake.normalise import normalisers
 from smspace.lake.store import within
-from smspace.train.config import TrainConfig, check_resources
+from smspace.train import engine
+from smspace.train.config import RUNS, TrainConfig, check_resources
 from smspace.train.contract import check_model
-from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch, ranks_agree
-from smspace.train.evaluation import N_PREDICTIONS, EvalData
-from smspace.train.loop import (
-    TrainingFailed,
-    open_member,
-    recorded_outcome,
-    resolve_device,
-    resume_members,
-    run_dataset,
-    train,
-)
-from smspace.train.model import build_model, prediction_loss
-from smspace.train.precision import compiled, step_loss
+from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch
+from smspace.train.engine import EvalData, Evaluation, Member, resolve_device
+from smspace.train.loader import TransitionStream
 from smspace.train.run_dir import CHECKPOINT, RunDir
 from smspace.train.terms import resumed
 
-__all__ = ["FitPlan", "SingleLearner", "TrainingFailed", "build", "fit", "plan_fit", "resolve_device"]
-RUNS = "runs"  # where a run goes without --out: runs/<dataset>-nh<N>-seed<S>
+# --- plan -----------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -85,7 +79,7 @@ def plan_fit(
         check_resources(cfg, manifest)
         check_network(cfg, manifest)
         checkpoint = run.load_checkpoint()
-        check_checkpoint(checkpoint, cfg, manifest, f"{run.path}/{CHECKPOINT}")
+        engine.check_checkpoint(checkpoint, cfg, *_shape(manifest), f"{run.path}/{CHECKPOINT}")
         run.check_whole(checkpoint)
         return FitPlan(cfg, str(run.path), resume=True, change=change)
     if dataset is None:
@@ -103,159 +97,233 @@ def plan_fit(
     return FitPlan(cfg, str(where), resume=False, overwrite=overwrite)
 
 
-def network(cfg: TrainConfig, n_motor: int, n_sensor: int) -> torch.nn.Module:
-    """The run's model (cfg.model with its parameters), as its config describes it."""
-    return build_model(
-        cfg.model, n_motor, n_sensor, cfg.n_h, cfg.encoder_layers, cfg.predictor_layers, cfg.model_params
-    )
+def _shape(manifest) -> tuple[int, int]:
+    """(n_motor, n_sensor): what a run's network is built for."""
+    return manifest.n_motor, int(np.prod(manifest.sensor_shape))
 
 
 def check_network(cfg: TrainConfig, manifest) -> None:
     """The run's model holds to its contract on a probe batch (train/contract.py), after the memory
     it needs was found to be there."""
-    n_sensor = int(np.prod(manifest.sensor_shape))
-    check_model(cfg, manifest.n_motor, n_sensor)
+    check_model(cfg, *_shape(manifest))
 
 
-def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):
-    """The run's initial weights (drawn from its seed) and its optimiser."""
-    torch.manual_seed(cfg.seed)
-    model = network(cfg, n_motor, n_sensor).to(device)
-    # fused Adam: one kernel for all parameters, 1.5-2x faster steps than the per-tensor loop on a CPU
-    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-8, fused=True)
-    return model, optimizer
+# --- the run's data -------------------------------------------------------------------------------
 
 
-def check_checkpoint(checkpoint: dict[str, Any], cfg: TrainConfig, manifest, where: str) -> int:
-    """The step of a checkpoint that belongs to this run's network, or one line saying why not (a
-    checkpoint of another run, another N_h, other layers or another model) before anything is
-    loaded into a model. A checkpoint of smspace 0.1 (weights stored (out, in)) is converted."""
-    n_sensor = int(np.prod(manifest.sensor_shape))
-    with torch.device("meta"):  # shapes only: nothing is allocated
-        expected = network(cfg, manifest.n_motor, n_sensor)
-    shapes = {name: tuple(t.shape) for name, t in expected.state_dict().items()}
-    state = checkpoint.get("model") if isinstance(checkpoint, dict) else None
-    if not isinstance(state, dict) or not isinstance(checkpoint.get("step"), int):
-        raise SmspaceError(f"{where} is not a smspace checkpoint (no model or step); it was not loaded")
-    if LAYOUT not in checkpoint:
-        _upgrade(checkpoint, shapes)
-    got = {name: tuple(t.shape) for name, t in state.items() if isinstance(t, torch.Tensor)}
-    if got != shapes:
-        name = next((n for n in shapes if got.get(n) != shapes[n]), None) or next(n for n in got if n not in shapes)
-        raise SmspaceError(
-            f"{where} holds another network than this run's config ({name}: {got.get(name)} in the checkpoint, "
-            f"{shapes.get(name)} for model {cfg.model}, N_h {cfg.n_h} and layers "
-            f"{cfg.encoder_layers}/{cfg.predictor_layers}); it belongs to another run and was not loaded"
-        )
-    if not 0 <= checkpoint["step"] <= cfg.steps:
-        raise SmspaceError(f"{where} is at step {checkpoint['step']}, outside this run's 0..{cfg.steps}")
-    return checkpoint["step"]
+def run_dataset(cfg: TrainConfig, where: str) -> Dataset:
+    """The dataset a run trains on, refused if it is not the one the run recorded (regenerated)."""
+    ds = Dataset(cfg.dataset)
+    recorded = (cfg.dataset_config_hash, cfg.dataset_shards_sha256)
+    found = (ds.manifest.config_hash, ds.manifest.shards_digest)
+    for name, was, now in zip(("config hash", "shard hashes"), recorded, found, strict=True):
+        if was and was != now:  # empty: a config written by hand or by smspace 0.1
+            raise SmspaceError(
+                f"dataset {ds.url} is not the one {where} was trained on (its {name} changed); train a new run instead"
+            )
+    for size, shard in zip(ds.shard_sizes(), ds.manifest.shards, strict=True):
+        if size != shard["bytes"]:
+            raise SmspaceError(f"shard {ds.url}/{shard['file']} is not the size its manifest records")
+    return ds
 
 
-LAYOUT = "layout"  # in checkpoints: "in-out", how dense weights are stored (absent: smspace 0.1's (out, in))
+def eval_data(ds: Dataset, n: int, device: torch.device) -> EvalData:
+    """The regular sampling and the first `n` transitions, normalised with the dataset's statistics."""
+    m_norm, s_norm = normalisers(ds.manifest)
+    m_reg, p_reg = ds.regular_sampling()
+    head = ds.read_all(n)
+
+    def col(name: str, norm) -> torch.Tensor:
+        return torch.from_numpy(norm(getattr(head, name))).to(device)
+
+    return EvalData(
+        torch.from_numpy(m_norm(m_reg)).to(device),
+        p_reg.astype(np.float64),
+        col("m_t", m_norm),
+        col("s_t", s_norm),
+        col("m_t1", m_norm),
+        col("s_t1", s_norm),
+    )
 
 
-def _upgrade(checkpoint: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> None:
-    """Weights smspace 0.1 stored (out, in), and their Adam moments, transposed to (in, out)."""
-    state = checkpoint["model"]
-    names = list(state)
-    flipped = [
-        n
-        for n in names
-        if state[n].dim() == 2 and tuple(state[n].shape[::-1]) == shapes.get(n) != tuple(state[n].shape)
-    ]
-    for n in flipped:
-        state[n] = state[n].t().contiguous()
-    moments = checkpoint.get("optimizer", {}).get("state", {})
-    for i, n in enumerate(names):
-        if n in flipped and i in moments:
-            for key in ("exp_avg", "exp_avg_sq"):
-                moments[i][key] = moments[i][key].t().contiguous()
-    checkpoint[LAYOUT] = "in-out"
+def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Ranks = SINGLE) -> tuple[Member, Dataset]:
+    """What the engine trains of a run folder: its config, stream and evaluation set."""
+    ds = run_dataset(cfg, str(run.path))
+    if not cfg.encoder_layers:  # a config built by hand: resolved (the setup's encoder), and recorded so
+        cfg = cfg.for_dataset(ds.store, ds.manifest)
+        if ranks.primary:
+            run.write_config(cfg)
+    batch = per_rank_batch(cfg.batch_size, ranks)
+    stream = TransitionStream(
+        ds, batch, seed=cfg.seed, window=cfg.shuffle_window, rank=ranks.rank, world_size=ranks.world
+    )
+    return Member(str(run.path), cfg, stream, eval_data(ds, cfg.eval_transitions, device)), ds
 
 
-class SingleLearner:
-    """One model and its Adam: the `Learner` of a lone run (under DDP, of one rank)."""
+# --- the run folder: where evaluations go, and where a resume starts ------------------------------
 
-    def __init__(
-        self,
-        model: torch.nn.Module,
-        optimizer: torch.optim.Adam,
-        data: EvalData,
-        ranks: Ranks = SINGLE,
-        precision: str = "fp32",
-        compile: bool = False,
-    ):
-        self.model, self.optimizer, self.data, self.ranks = model, optimizer, data, ranks
-        self.precision, self.compile = precision, compile
-        self._trained: torch.nn.Module | None = None
-        self._loss: Callable | None = None
 
-    def _training_model(self) -> torch.nn.Module:
-        """The model the steps run through: wrapped in DDP (gradients averaged over the ranks) when
-        there are several, built at the first step, after any checkpoint was loaded."""
-        if self._trained is None:
-            self._trained = DistributedDataParallel(self.model) if self.ranks.distributed else self.model
-        return self._trained
+class RunFolders:
+    """The engine's sink for run folders: each evaluation's files, then its checkpoint (the commit
+    record); at the end, the status. Runs trained together keep their previous checkpoint too."""
 
-    def set_lr(self, lr: float) -> None:
-        for group in self.optimizer.param_groups:
-            group["lr"] = lr
+    def __init__(self, runs: list[RunDir]):
+        self.runs = runs
 
-    def _step_loss(self) -> Callable:
-        """The forward pass and loss of a step, in the run's precision, compiled if asked."""
-        if self._loss is None:
-            loss = step_loss(self._training_model(), self.precision, self.data.m_regular.device)
-            self._loss = compiled(loss, self.compile)
-        return self._loss
+    def on_evaluation(self, ev: Evaluation) -> None:
+        keep = len(self.runs) > 1
+        self.runs[ev.r].write_evaluation(ev.rows, ev.h, ev.p, ev.predictions, ev.true, ev.state, keep_previous=keep)
 
-    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
-        device = self.data.m_regular.device
-        m_t, s_t, m_t1, s_t1 = (x.to(device, non_blocking=True) for x in batches[0])
-        loss = self._step_loss()(m_t, s_t, m_t1, s_t1)
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        self.optimizer.step()
-        return loss.detach().reshape(1)
+    def on_finish(self, step: int, message: str) -> None:
+        for run in self.runs:
+            run.set_status("finished", step, message)
 
-    @torch.no_grad()
-    def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
-        d = self.data
-        h = self.model.encode(d.m_regular).double().cpu().numpy()
-        pred = self.model(d.m_t, d.s_t, d.m_t1)
-        loss = float(prediction_loss(pred, d.s_t1))
-        return np.array([loss]), [h], [pred[:N_PREDICTIONS].cpu().numpy()]
 
-    def state_of(self, r: int, lr: float) -> dict[str, Any]:
-        return {"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict()}
+def resume_from_folders(
+    learner: engine.Learner,
+    members: list[Member],
+    runs: list[RunDir],
+    device: torch.device,
+    shape: tuple[int, int],
+    ranks: Ranks = SINGLE,
+) -> int:
+    """Load every run's checkpoint, all at one step, which is returned. Members of an ensemble
+    that a kill left between the checkpoint writes of one evaluation (some at step S, the others
+    at the evaluation before) are rolled back to the step all reached: the ensemble resumes as the
+    uninterrupted one would have gone on."""
+    checkpoints = [run.load_checkpoint(str(device)) for run in runs]
+    step = min(int(ckpt["step"]) for ckpt in checkpoints)
+    for r, (run, ckpt) in enumerate(zip(runs, checkpoints, strict=True)):
+        if int(ckpt["step"]) > step:
+            try:
+                checkpoints[r] = run.roll_back(str(device))
+            except FileNotFoundError:
+                checkpoints[r] = {"step": None}
+            if checkpoints[r]["step"] != step:
+                raise SmspaceError(
+                    f"runs trained together must resume at one step: {run.path} is at step "
+                    f"{ckpt['step']} and keeps no checkpoint of step {step}"
+                )
+        run.check_whole(checkpoints[r])
+    step = engine.resume(learner, members, checkpoints, shape)
+    for m, run in zip(members, runs, strict=True):
+        m.rows = [row for row in run.metrics() if row["step"] <= step]
+        if ranks.primary:  # the run folder is rank 0's
+            run.truncate_after(step)
+    return step
 
-    def load(self, r: int, checkpoint: dict[str, Any]) -> None:
-        self.model.load_state_dict(checkpoint["model"])
-        self.optimizer.load_state_dict(checkpoint["optimizer"])
+
+@contextmanager
+def recorded_outcome(runs: list[RunDir]) -> Iterator[None]:
+    """Whatever stops training early — bad data, a NaN, Ctrl-C, a bug — is written in each run's
+    status, so that no run looks alive after its process is gone. Best effort, within a few
+    seconds: the storage may be what failed, and the cause must not be hidden behind its error."""
+    try:
+        yield
+    except SmspaceError as e:
+        _mark(runs, "failed", str(e))
+        raise
+    except KeyboardInterrupt:
+        _mark(runs, "interrupted", "interrupted; the checkpoint of step {step} is kept: resume it")
+        raise
+    except Exception as e:
+        _mark(runs, "failed", f"{type(e).__name__}: {e}")
+        raise
+
+
+def _mark(runs: list[RunDir], state: str, message: str) -> None:
+    """Each run's status, with the step of its last evaluation (hence of its checkpoint)."""
+
+    def mark(run: RunDir) -> None:
+        step = run.status()["step"]
+        run.set_status(state, step, " ".join(message.replace("{step}", str(step)).split()))
+
+    run_within([lambda run=run: mark(run) for run in runs])
+
+
+@contextmanager
+def claimed(runs: list[RunDir], device: str, threads: int, primary: bool = True) -> Iterator[None]:
+    """The runs held by this process while it trains them (a run another process trains is left
+    untouched), each with this session recorded; the claims end with the training, however it ends."""
+    try:
+        if primary:
+            for run in runs:
+                run.claim()
+            for run in runs:
+                run.record_session(device, threads)
+        yield
+    finally:
+        for run in runs:
+            run.release()
+
+
+# --- one run --------------------------------------------------------------------------------------
 
 
 def fit(cfg: TrainConfig, run: RunDir, resume: bool = False, ranks: Ranks = SINGLE) -> dict[str, Any] | None:
     """Train (or resume) one run; returns its last metrics row (on rank 0; None on the others)."""
     torch.set_num_threads(cfg.threads)  # 2 cores: oversubscribed threads made steps 10-40x slower
     device = resolve_device(cfg.device)
-    if ranks.primary:
-        run.claim()  # before anything is recorded: a run another process trains is left untouched
-    try:
-        if ranks.primary:
-            run.record_session(cfg.device, cfg.threads)
-        return _fit_claimed(cfg, run, resume, ranks, device)
-    finally:
-        run.release()  # the lock ends with the training, not whenever the RunDir is collected
-
-
-def _fit_claimed(cfg: TrainConfig, run: RunDir, resume: bool, ranks: Ranks, device) -> dict[str, Any] | None:
-    with recorded_outcome([run] if ranks.primary else []):
-        member = open_member(run, cfg, device, ranks)
-        manifest = member.dataset.manifest
-        cfg = member.cfg
-        model, optimizer = build(cfg, manifest.n_motor, int(np.prod(manifest.sensor_shape)), device)
-        learner = SingleLearner(model, optimizer, member.data, ranks, cfg.precision, cfg.compile)
-        step = resume_members(learner, [member], device, ranks) if resume else 0
+    with claimed([run], cfg.device, cfg.threads, ranks.primary), recorded_outcome([run] if ranks.primary else []):
+        member, ds = open_member(run, cfg, device, ranks)
+        cfg, shape = member.cfg, _shape(ds.manifest)
+        model, optimizer = engine.build(cfg, *shape, device)
+        learner = engine.SingleLearner(model, optimizer, member.data, ranks, cfg.precision, cfg.compile)
+        step = resume_from_folders(learner, [member], [run], device, shape, ranks) if resume else 0
         with peer_errors(ranks):
-            train(learner, [member], step, ranks=ranks, synced=lambda: ranks_agree(model, ranks))
+            engine.train(learner, [member], step, [RunFolders([run])], ranks=ranks)
     return member.rows[-1] if ranks.primary else None
+
+
+# --- runs trained together (a sweep's ensemble) ---------------------------------------------------
+
+# What runs of one ensemble must share: the model and the schedule the loop applies to all.
+SHARED = (
+    "steps",
+    "batch_size",
+    "n_h",
+    "encoder_layers",
+    "predictor_layers",
+    "model",
+    "model_params",
+    "lr_start",
+    "lr_end",
+    "lr_decay_steps",
+    "eval_every",
+    "device",
+    "precision",
+    "compile",
+)
+
+
+def _check_compatible(cfgs: list[TrainConfig]) -> None:
+    first = cfgs[0].to_dict()
+    for cfg in cfgs[1:]:
+        other = cfg.to_dict()
+        diff = [k for k in SHARED if other[k] != first[k]]
+        if diff:
+            raise SmspaceError(f"runs of one ensemble must share {', '.join(diff)}")
+
+
+def train_ensemble(
+    runs: list[RunDir],
+    resume: bool = False,
+    threads: int = 1,
+    progress: bool = True,
+    on_step: Callable[[int], None] | None = None,
+) -> None:
+    """Train runs together to their configured steps: from scratch, or (resume) from their
+    checkpoints; `on_step` hears the step about every second."""
+    torch.set_num_threads(threads)
+    device = resolve_device(runs[0].config.device)
+    with claimed(runs, runs[0].config.device, threads), recorded_outcome(runs):
+        opened = [open_member(run, run.config, device) for run in runs]
+        members, manifests = [m for m, _ in opened], [ds.manifest for _, ds in opened]
+        cfgs, shape = [m.cfg for m in members], _shape(manifests[0])
+        _check_compatible(cfgs)
+        if any(_shape(mf) != shape for mf in manifests):
+            raise SmspaceError("runs of one ensemble must have datasets of the same setup")
+        check_resources(cfgs[0], manifests[0], runs=len(runs))
+        learner = engine.EnsembleLearner(cfgs, *shape, [m.data for m in members], device)
+        step = resume_from_folders(learner, members, runs, device, shape) if resume else 0
+        engine.train(learner, members, step, [RunFolders(runs)], progress, on_step=on_step)

@@ -110,19 +110,3 @@ def _first_sentence(e: BaseException) -> str:
     pages, and a line cut at a fixed width ends mid-sentence."""
     lines = [line.strip() for line in str(e).splitlines() if line.strip()]
     return f"{type(e).__name__}: {lines[0]}" if lines else type(e).__name__
-
-
-Loss = Callable[..., torch.Tensor]
-
-
-def step_loss(forward: Callable[..., torch.Tensor], precision: str, device: torch.device) -> Loss:
-    """The forward pass and loss of a training step in `precision` (the loss itself in fp32): for a
-    lone model and a stacked ensemble alike (whose `forward` gives each run's own loss, (R,))."""
-    from smspace.train.model import prediction_loss
-
-    def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
-        with autocast(precision, device):
-            pred = forward(m_t, s_t, m_t1)
-        return prediction_loss(pred.float(), s_t1)
-
-    return loss

@@ -364,7 +364,7 @@ class RunDir:
     def save_checkpoint(self, state: dict[str, Any], keep_previous: bool = False) -> None:
         """The new commit record; `keep_previous`: the one it replaces is kept beside it first, so
         that a member of an ensemble that a kill left one evaluation ahead of the others can be
-        rolled back to the step all of them reached (train/loop.py, resume_members)."""
+        rolled back to the step all of them reached (train/fit.py, resume_from_folders)."""
         buf = io.BytesIO()
         torch.save(state | {RUN_ID: self.run_id}, buf)
         if keep_previous and self._last_checkpoint is not None:
