@@ -30,7 +30,7 @@ def executor_option(what: str) -> Callable:
     start) or Ray."""
     return click.option(
         "--executor",
-        type=click.Choice(["local", "ray"]),
+        type=click.Choice(EXECUTORS),
         default="local",
         show_default=True,
         help=f"Where {what}: local processes, or Ray ($RAY_ADDRESS, else a local Ray on --workers CPUs).",
@@ -73,6 +73,14 @@ def on_interrupt(message: str) -> Iterator[None]:
 
 MAX_WORKERS = 1024  # processes (or Ray CPUs) one command may ask for
 MAX_ENSEMBLE = 10_000  # runs in one vectorised model
+DEFAULT_MAX_ENSEMBLE = 150  # runs per vectorised model unless a sweep or study says otherwise
+EXECUTORS = ("local", "ray")  # where work fans out: this machine's processes, or Ray
+DEFAULT_LAKE = "data/lake"
+
+
+def default_lake() -> str:
+    """$SMSPACE_LAKE (a folder or an fsspec URL such as s3://bucket/lake), else data/lake."""
+    return os.environ.get("SMSPACE_LAKE") or DEFAULT_LAKE
 
 
 def default_workers() -> int:

@@ -15,6 +15,8 @@ from collections.abc import Callable, Sequence
 
 from click.shell_completion import CompletionItem
 
+from smspace.common.cli import default_lake
+
 Completer = Callable[..., list[CompletionItem]]
 
 
@@ -41,7 +43,7 @@ def complete_devices(ctx, param, incomplete: str) -> list[CompletionItem]:
 def complete_datasets(ctx, param, incomplete: str) -> list[CompletionItem]:
     """The dataset ids of the lake given by --lake (else $SMSPACE_LAKE or data/lake); nothing for a
     lake on object storage, which would mean a network call on every Tab."""
-    lake = ctx.params.get("lake") or os.environ.get("SMSPACE_LAKE") or "data/lake"
+    lake = ctx.params.get("lake") or default_lake()
     if "://" in str(lake):
         return []
     try:

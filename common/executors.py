@@ -22,7 +22,7 @@ from multiprocessing.managers import SyncManager
 from pathlib import Path
 from typing import Any
 
-from smspace.common.cli import die_with_parent
+from smspace.common.cli import EXECUTORS, die_with_parent
 from smspace.common.errors import SmspaceError, one_line
 
 
@@ -126,9 +126,6 @@ def _remember_registrations(tracker: Any) -> None:
             live.pop((name, rtype), None)
 
     tracker.ensure_running, tracker._send = ensure_running, remembered_send
-
-
-EXECUTORS = ("local", "ray")
 
 
 class Executor:

@@ -2,25 +2,18 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
+from smspace.common.cli import default_lake
 from smspace.common.errors import SmspaceError
 from smspace.lake.integrity import check_file
 from smspace.lake.manifest import GENERATION, MANIFEST, Manifest, load_manifest
 from smspace.lake.shards import Block, ShardReader
 from smspace.lake.store import Store, is_url, open_store
 from smspace.lake.transitions import Transitions
-
-DEFAULT_LAKE = "data/lake"
-
-
-def default_lake() -> str:
-    """$SMSPACE_LAKE (a folder or an fsspec URL such as s3://bucket/lake), else data/lake."""
-    return os.environ.get("SMSPACE_LAKE") or DEFAULT_LAKE
 
 
 def open_lake(ref: str | Path | Store | None) -> Store:

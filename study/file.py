@@ -31,7 +31,7 @@ from dataclasses import MISSING, Field, asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from smspace.common.cli import MAX_ENSEMBLE, MAX_WORKERS
+from smspace.common.cli import EXECUTORS, MAX_ENSEMBLE, MAX_WORKERS
 from smspace.common.errors import SmspaceError
 from smspace.lake.manifest import MAX_TRANSITIONS, MAX_WORLDS, SEED_MAX
 from smspace.lake.transitions import MODES
@@ -45,7 +45,6 @@ SECTIONS = ("study", "train", "grid", "run")
 RUN_KEYS = {"workers": (1, MAX_WORKERS), "gen_workers": (1, MAX_WORKERS), "max_ensemble": (1, MAX_ENSEMBLE),
             "executor": None}  # fmt: skip
 MAX_COMBINATIONS = 1000  # sub-studies in one file: each is a folder, a plan and a dry-run line
-EXECUTORS = ("local", "ray")
 NOT_TRAINABLE = ("seed",)  # a run's seed is its world's
 SETUP_KEY = "setup"  # the one [grid] key that is not a training field: a sub-study per setup
 

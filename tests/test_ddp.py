@@ -117,13 +117,11 @@ def test_a_nan_on_the_ranks_stops_every_rank_at_once(tmp_path):
     assert status["state"] == "failed" and "NaN" in status["message"]
 
 
-@pytest.mark.parametrize("victim", [1, 0])
-def test_a_rank_killed_outright_is_named_in_one_line_and_in_the_status(tmp_path, victim):
-    """kill -9 of rank 1 gave 51 lines of gloo traceback on rank 0 (and its status stored them);
-    kill -9 of rank 0 printed nothing, exited 247 and left the status "running"."""
+def signalled_two_rank_run(out, signum: int, pid_of) -> tuple[subprocess.Popen, dict[int, int], str]:
+    """A long two-rank run, sent `signum` once its first checkpoint exists: to the process
+    `pid_of({rank: pid})` names, the launcher for 0. Returns the launcher, the ranks' pids, its stderr."""
     import psutil
 
-    out = tmp_path / "run"
     proc = fit(DATASET, "--nproc", 2, "--steps", 100000, "--eval-every", 50, "--out", out)
     try:
         deadline = time.monotonic() + 120
@@ -131,10 +129,19 @@ def test_a_rank_killed_outright_is_named_in_one_line_and_in_the_status(tmp_path,
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
             time.sleep(0.2)
         ranks = {int(p.environ()["RANK"]): p.pid for p in psutil.Process(proc.pid).children()}
-        os.kill(ranks[victim], signal.SIGKILL)
+        os.kill(pid_of(ranks) or proc.pid, signum)
         _, stderr = proc.communicate(timeout=60)
     finally:
         stop_group(proc)
+    return proc, ranks, stderr
+
+
+@pytest.mark.parametrize("victim", [1, 0])
+def test_a_rank_killed_outright_is_named_in_one_line_and_in_the_status(tmp_path, victim):
+    """kill -9 of rank 1 gave 51 lines of gloo traceback on rank 0 (and its status stored them);
+    kill -9 of rank 0 printed nothing, exited 247 and left the status "running"."""
+    out = tmp_path / "run"
+    proc, ranks, stderr = signalled_two_rank_run(out, signal.SIGKILL, lambda ranks: ranks[victim])
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
     expected = f"smtrain: error: rank {victim} (pid {ranks[victim]}) was killed by SIGKILL; its checkpoint of step"
     assert proc.returncode == 137 and len(lines) == 1 and lines[0].startswith(expected), stderr
@@ -146,20 +153,12 @@ def test_a_rank_killed_outright_is_named_in_one_line_and_in_the_status(tmp_path,
 @pytest.mark.parametrize("target", ["launcher", "rank 0", "rank 1"])
 def test_sigterm_to_a_two_rank_run_says_interrupted_once(tmp_path, target):
     """SIGTERM to the launcher printed its interrupted line twice (rank 0's and the launcher's)."""
-    import psutil
-
     out = tmp_path / "run"
-    proc = fit(DATASET, "--nproc", 2, "--steps", 100000, "--eval-every", 50, "--out", out)
-    try:
-        deadline = time.monotonic() + 120
-        while not (out / "checkpoint.pt").exists():
-            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-            time.sleep(0.2)
-        ranks = {int(p.environ()["RANK"]): p.pid for p in psutil.Process(proc.pid).children()}
-        os.kill(proc.pid if target == "launcher" else ranks[int(target[-1])], signal.SIGTERM)
-        _, stderr = proc.communicate(timeout=60)
-    finally:
-        stop_group(proc)
+
+    def pid(ranks: dict[int, int]) -> int:
+        return ranks[int(target[-1])] if target.startswith("rank") else 0  # 0: the launcher
+
+    proc, _, stderr = signalled_two_rank_run(out, signal.SIGTERM, pid)
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
     assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("interrupted"), stderr
     assert "is kept: smtrain fit --resume" in lines[0] and lines[0].endswith(f"{out} --nproc 2"), stderr

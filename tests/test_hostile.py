@@ -13,7 +13,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from smspace.train.cli import main as smtrain_main
+from smspace.study.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 
 from .conftest import BIN, SAMPLES, smgen

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from smspace.lake.shards import Block, ShardReader, shard_bytes
 from smspace.lake.transitions import Transitions
-from smspace.train.cli import main as smtrain_main
+from smspace.study.cli import main as smtrain_main
 
 from .conftest import SAMPLES, smgen
 

@@ -11,7 +11,7 @@ import torch
 from click.testing import CliRunner
 
 from smspace.datagen.cli import main as smgen_main
-from smspace.train.cli import main as smtrain_main
+from smspace.study.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 
 from .numerics import assert_same_trajectory

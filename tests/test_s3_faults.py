@@ -214,7 +214,7 @@ def test_resume_refuses_a_folder_holding_parts_of_two_runs(s3, tmp_path, monkeyp
         monkeypatch.setenv(key, value)
     from click.testing import CliRunner
 
-    from smspace.train.cli import main
+    from smspace.study.cli import main
 
     lake, out = "s3://lake/mixed", "s3://lake/mixed-run"
     assert (

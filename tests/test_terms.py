@@ -7,7 +7,7 @@ import json
 
 from click.testing import CliRunner
 
-from smspace.train.cli import main as smtrain_main
+from smspace.study.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 
 from .conftest import SAMPLES

@@ -83,7 +83,7 @@ def test_smgen_view_arm_dataset_has_images_and_a_room_map(tmp_path):
 def test_smtrain_view_run(tmp_path):
     from click.testing import CliRunner
 
-    from smspace.train.cli import main as smtrain_main
+    from smspace.study.cli import main as smtrain_main
 
     run = tmp_path / "run"
     r = CliRunner().invoke(

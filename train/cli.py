@@ -13,31 +13,22 @@ import click
 
 from smspace.common.cli import (
     LAKE_OPTION,
-    MAX_ENSEMBLE,
-    MAX_WORKERS,
     OneLineErrors,
     display_name,
     echo_listing,
-    executor_option,
     friendly_errors,
-    on_interrupt,
 )
-from smspace.common.completion import comma_list_completer, complete_datasets
+from smspace.common.completion import complete_datasets
 from smspace.common.errors import Interrupted, SmspaceError
 from smspace.common.rerun_output import view_options
-from smspace.datagen.setups import setup_names  # the command line composes generation and training
-from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
-from smspace.lake.transitions import MODES
+from smspace.train.config import RUNS
 from smspace.train.options import (
     config_from_flags,
     config_options,
     flag_fields_of_config,
     flag_name,
     given_fields,
-    on_command_line,
 )
-
-RUNS = "runs"  # a folder or an fsspec URL (s3://bucket/runs)
 
 
 @click.group(name="smtrain", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
@@ -86,7 +77,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     ctx = click.get_current_context()
     given = [flag_name(f) for f in flag_fields_of_config() if f.name in given_fields(ctx)]
     template = config_from_flags(flags)
-    _say_precision(flags)
+    say_precision(flags)
     if nproc > 1 and STORE_ENV not in os.environ:  # this process only launches the ranks
         if "WORLD_SIZE" in os.environ:
             raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
@@ -122,8 +113,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
         click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
 
 
-@contextlib.contextmanager
-def _say_precision(flags: dict) -> None:
+def say_precision(flags: dict) -> None:
     """--precision auto is decided now, for the runs created now; say what and why."""
     if flags.get("precision") == "auto":
         from smspace.train.precision import resolve
@@ -150,150 +140,6 @@ def _attempt(action):
         return action(), None
     except SmspaceError as e:
         return None, e
-
-
-@main.command()
-@click.argument("study_file", required=False, type=click.Path(path_type=Path))
-@click.option("--setup", "setup_name", type=click.Choice(setup_names()), help="A built-in or registered setup.")
-@click.option(
-    "--modes",
-    default="MEM,MM,MME",
-    show_default=True,
-    shell_complete=comma_list_completer(MODES),
-    help="Comma-separated modes, or all.",
-)
-@click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
-@click.option(
-    "--seed",
-    "first_world",
-    type=click.IntRange(0, SEED_MAX),
-    default=0,
-    show_default=True,
-    help="First world seed; a run's seed is its world's.",
-)
-@click.option("--transitions", type=click.IntRange(min=1), default=None, help="[setup default]")
-@click.option(
-    "--gen-workers",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Generator processes [default: this machine's cores; bytes do not depend on it].",
-)
-@LAKE_OPTION
-@click.option(
-    "--out", default=None, help="Folder (or fsspec URL) for the run folders [default: runs, or runs/<study name>]."
-)
-@config_options(exclude=("seed",))
-@click.option(
-    "--max-ensemble",
-    type=click.IntRange(1, MAX_ENSEMBLE),
-    default=150,
-    show_default=True,
-    help="Runs per vectorised model.",
-)
-@click.option("--overwrite", is_flag=True, help="Replace runs in --out made with another config.")
-@executor_option("ensembles train")
-@click.option(
-    "--workers",
-    type=click.IntRange(1, MAX_WORKERS),
-    default=None,
-    help="Ensembles trained at once (processes, or CPUs of a local Ray) [default: this machine's cores].",
-)
-@click.option(
-    "--dry-run", is_flag=True, help="With a study file: what it would generate, train, store and take; writes nothing."
-)
-@friendly_errors
-def sweep(
-    study_file,
-    setup_name,
-    modes,
-    worlds,
-    first_world,
-    transitions,
-    gen_workers,
-    lake,
-    out,
-    max_ensemble,
-    overwrite,
-    executor,
-    workers,
-    dry_run,
-    **flags,
-) -> None:
-    """Generate missing datasets, then train every (world, mode) run as vectorised ensembles: from
-    flags, or from STUDY_FILE (TOML: docs/STUDIES.md), which may also vary any training field."""
-    from smspace.common.cli import default_workers
-    from smspace.datagen.setups import get_setup
-    from smspace.lake.dataset import open_lake
-    from smspace.lake.transitions import parse_modes
-    from smspace.study.sweep import sweep as run_sweep
-    from smspace.train.fit import resolve_device
-
-    ctx = click.get_current_context()
-    if study_file is not None:
-        _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run)
-        return
-    if dry_run:
-        raise SmspaceError("--dry-run needs a study file (smtrain sweep STUDY.toml --dry-run)")
-    if setup_name is None:
-        raise SmspaceError("give a study file or --setup (smtrain sweep --help)")
-    get_setup(setup_name)
-    mode_list = parse_modes(modes)
-    template = config_from_flags(flags)
-    _say_precision(flags)
-    resolve_device(template.device)
-    out = out or RUNS
-    message = (
-        f"interrupted; the runs in {out} keep their last checkpoints and the lake its complete parts: "
-        "the same command resumes them"
-    )
-    with on_interrupt(message):
-        runs = run_sweep(
-            setup_name,
-            mode_list,
-            list(range(first_world, first_world + worlds)),
-            template,
-            open_lake(lake),
-            out,
-            transitions,
-            gen_workers or default_workers(),
-            max_ensemble,
-            overwrite,
-            executor,
-            workers or default_workers(),
-            explicit=given_fields(ctx),
-            notify=lambda line: click.echo(line, err=True),
-        )
-    for run in runs:
-        click.echo(display_name(str(run.path)))
-
-
-STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions", "max_ensemble")
-
-
-def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run) -> None:
-    """`smtrain sweep STUDY.toml`: what the study computes comes from the file alone."""
-    from smspace.lake.dataset import open_lake
-    from smspace.study.run import dry_run as plan_only
-    from smspace.study.run import run_study
-
-    given = [p.opts[0] for p in ctx.command.params if p.name in STUDY_FILE_KEYS and on_command_line(ctx, p.name)]
-    given += [flag_name(f) for f in flag_fields_of_config() if f.name in given_fields(ctx)]
-    if given:
-        raise SmspaceError(f"{', '.join(given)}: set in the study file {study_file}, not on the command line")
-    if dry_run:
-        for line in plan_only(study_file, open_lake(lake), out, workers, overwrite):
-            click.echo(line)
-        return
-    ex = executor if on_command_line(ctx, "executor") else None
-    with on_interrupt(
-        f"interrupted; the study's runs keep their last checkpoints: smtrain sweep {study_file} resumes them"
-    ):
-        runs = run_study(
-            study_file, open_lake(lake), out, overwrite, workers, gen_workers, ex,
-            notify=lambda line: click.echo(line, err=True),
-        )  # fmt: skip
-    for run in runs:
-        click.echo(display_name(str(run.path)))
 
 
 @main.command()

@@ -20,6 +20,7 @@ from smspace.lake.store import Store, open_store
 
 # torch, the networks and the precision probe are imported where they are used: the command line
 # builds its flags from this module, and `smtrain --help` or a Tab must not wait for torch
+RUNS = "runs"  # where runs go without --out: runs/<dataset>-nh<N>-seed<S>, a study's runs/<name>
 DEFAULT_MODEL = "sensorimotor"
 ENTRY_POINTS = "smspace.models"  # where packages register networks of their own (docs/API.md)
 PRECISIONS = ("fp32", "bf16", "auto")

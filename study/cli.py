@@ -1,0 +1,184 @@
+"""`smtrain sweep`: the command that composes generation and training (a sweep generates the
+datasets it trains on), so it lives above both: `smtrain` is train/cli.py's group with this command
+added, and nothing in train/ imports the generators or the studies (tests/test_layout.py)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from smspace.common.cli import (
+    DEFAULT_MAX_ENSEMBLE,
+    LAKE_OPTION,
+    MAX_ENSEMBLE,
+    MAX_WORKERS,
+    display_name,
+    executor_option,
+    friendly_errors,
+    on_interrupt,
+)
+from smspace.common.completion import comma_list_completer
+from smspace.common.errors import SmspaceError
+from smspace.datagen.setups import setup_names
+from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.lake.transitions import MODES
+from smspace.train.cli import main, say_precision
+from smspace.train.config import RUNS
+from smspace.train.options import (
+    config_from_flags,
+    config_options,
+    flag_fields_of_config,
+    flag_name,
+    given_fields,
+    on_command_line,
+)
+
+
+@main.command()
+@click.argument("study_file", required=False, type=click.Path(path_type=Path))
+@click.option("--setup", "setup_name", type=click.Choice(setup_names()), help="A built-in or registered setup.")
+@click.option(
+    "--modes",
+    default="MEM,MM,MME",
+    show_default=True,
+    shell_complete=comma_list_completer(MODES),
+    help="Comma-separated modes, or all.",
+)
+@click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
+@click.option(
+    "--seed",
+    "first_world",
+    type=click.IntRange(0, SEED_MAX),
+    default=0,
+    show_default=True,
+    help="First world seed; a run's seed is its world's.",
+)
+@click.option("--transitions", type=click.IntRange(min=1), default=None, help="[setup default]")
+@click.option(
+    "--gen-workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Generator processes [default: this machine's cores; bytes do not depend on it].",
+)
+@LAKE_OPTION
+@click.option(
+    "--out", default=None, help="Folder (or fsspec URL) for the run folders [default: runs, or runs/<study name>]."
+)
+@config_options(exclude=("seed",))
+@click.option(
+    "--max-ensemble",
+    type=click.IntRange(1, MAX_ENSEMBLE),
+    default=DEFAULT_MAX_ENSEMBLE,
+    show_default=True,
+    help="Runs per vectorised model.",
+)
+@click.option("--overwrite", is_flag=True, help="Replace runs in --out made with another config.")
+@executor_option("ensembles train")
+@click.option(
+    "--workers",
+    type=click.IntRange(1, MAX_WORKERS),
+    default=None,
+    help="Ensembles trained at once (processes, or CPUs of a local Ray) [default: this machine's cores].",
+)
+@click.option(
+    "--dry-run", is_flag=True, help="With a study file: what it would generate, train, store and take; writes nothing."
+)
+@friendly_errors
+def sweep(
+    study_file,
+    setup_name,
+    modes,
+    worlds,
+    first_world,
+    transitions,
+    gen_workers,
+    lake,
+    out,
+    max_ensemble,
+    overwrite,
+    executor,
+    workers,
+    dry_run,
+    **flags,
+) -> None:
+    """Generate missing datasets, then train every (world, mode) run as vectorised ensembles: from
+    flags, or from STUDY_FILE (TOML: docs/STUDIES.md), which may also vary any training field."""
+    from smspace.common.cli import default_workers
+    from smspace.datagen.setups import get_setup
+    from smspace.lake.dataset import open_lake
+    from smspace.lake.transitions import parse_modes
+    from smspace.study.sweep import sweep as run_sweep
+    from smspace.train.engine import resolve_device
+
+    ctx = click.get_current_context()
+    if study_file is not None:
+        _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run)
+        return
+    if dry_run:
+        raise SmspaceError("--dry-run needs a study file (smtrain sweep STUDY.toml --dry-run)")
+    if setup_name is None:
+        raise SmspaceError("give a study file or --setup (smtrain sweep --help)")
+    get_setup(setup_name)
+    mode_list = parse_modes(modes)
+    template = config_from_flags(flags)
+    say_precision(flags)
+    resolve_device(template.device)
+    out = out or RUNS
+    message = (
+        f"interrupted; the runs in {out} keep their last checkpoints and the lake its complete parts: "
+        "the same command resumes them"
+    )
+    with on_interrupt(message):
+        runs = run_sweep(
+            setup_name,
+            mode_list,
+            list(range(first_world, first_world + worlds)),
+            template,
+            open_lake(lake),
+            out,
+            transitions,
+            gen_workers or default_workers(),
+            max_ensemble,
+            overwrite,
+            executor,
+            workers or default_workers(),
+            explicit=given_fields(ctx),
+            notify=lambda line: click.echo(line, err=True),
+        )
+    for run in runs:
+        click.echo(display_name(str(run.path)))
+
+
+STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions", "max_ensemble")
+
+
+def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run) -> None:
+    """`smtrain sweep STUDY.toml`: what the study computes comes from the file alone."""
+    from smspace.lake.dataset import open_lake
+    from smspace.study.run import dry_run as plan_only
+    from smspace.study.run import run_study
+
+    given = [p.opts[0] for p in ctx.command.params if p.name in STUDY_FILE_KEYS and on_command_line(ctx, p.name)]
+    given += [flag_name(f) for f in flag_fields_of_config() if f.name in given_fields(ctx)]
+    if given:
+        raise SmspaceError(f"{', '.join(given)}: set in the study file {study_file}, not on the command line")
+    if dry_run:
+        for line in plan_only(study_file, open_lake(lake), out, workers, overwrite):
+            click.echo(line)
+        return
+    ex = executor if on_command_line(ctx, "executor") else None
+    with on_interrupt(
+        f"interrupted; the study's runs keep their last checkpoints: smtrain sweep {study_file} resumes them"
+    ):
+        runs = run_study(
+            study_file, open_lake(lake), out, overwrite, workers, gen_workers, ex,
+            notify=lambda line: click.echo(line, err=True),
+        )  # fmt: skip
+    for run in runs:
+        click.echo(display_name(str(run.path)))
+
+
+if __name__ == "__main__":
+    sys.exit(main(prog_name="smtrain"))
