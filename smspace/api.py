@@ -4,8 +4,9 @@ files, the same one-line errors (SmspaceError)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pyarrow as pa
 
@@ -15,6 +16,9 @@ from smspace.lake.dataset import open_lake as _open_store
 from smspace.lake.store import Store
 from smspace.lake.transitions import parse_modes
 from smspace.train.run_dir import RunDir
+
+if TYPE_CHECKING:
+    from smspace.train.engine import Sink
 
 
 class Lake:
@@ -87,10 +91,13 @@ def fit(
     out: str | Path | None = None,
     lake: Lake | str | Path | None = None,
     overwrite: bool = False,
+    sinks: Sequence[Sink] = (),
     **flags: Any,
 ) -> Run:
     """Train one run on a dataset, as `smtrain fit`: `flags` are TrainConfig's fields (steps,
-    n_h, encoder_layers, model, model_params, seed…), checked as the command checks its flags."""
+    n_h, encoder_layers, model, model_params, seed…), checked as the command checks its flags.
+    `sinks`: objects with `on_evaluation(evaluation)` and `on_finish(step, message)` that see each
+    evaluation after the run folder committed it (docs/API.md, "Your own logger")."""
     from smspace.train.config import TrainConfig, flag_fields
     from smspace.train.fit import fit as run_fit
     from smspace.train.fit import plan_fit
@@ -104,11 +111,11 @@ def fit(
     given = ["--steps"] if "steps" in flags else []
     plan = plan_fit(template, ds.url, None, None if out is None else str(out), None, overwrite, given, 1)
     run = plan.start()
-    run_fit(plan.cfg, run)
+    run_fit(plan.cfg, run, sinks=sinks)
     return Run(run.store)
 
 
-def resume(run: str | Path | RunDir, steps: int | None = None) -> Run:
+def resume(run: str | Path | RunDir, steps: int | None = None, sinks: Sequence[Sink] = ()) -> Run:
     """Continue a run from its last checkpoint (`steps` may extend it: train/terms.py)."""
     from smspace.train.config import TrainConfig
     from smspace.train.fit import fit as run_fit
@@ -118,7 +125,7 @@ def resume(run: str | Path | RunDir, steps: int | None = None) -> Run:
     template = TrainConfig(dataset="", **({} if steps is None else {"steps": steps}))
     plan = plan_fit(template, None, None, None, where, False, ["--steps"] if steps is not None else [], 1)
     started = plan.start()
-    run_fit(plan.cfg, started, resume=True)
+    run_fit(plan.cfg, started, resume=True, sinks=sinks)
     return Run(started.store)
 
 

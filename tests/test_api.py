@@ -29,6 +29,7 @@ def test_the_examples_of_docs_api_run(tmp_path, monkeypatch):
     assert namespace["h"].shape == (125, 3)
     assert sorted(r.config.n_h for r in namespace["study_runs"]) == [2, 3]
     assert (tmp_path / "runs" / "tiny" / "n_h=2" / "grid-seed7-MM-nh2-seed7" / "tensorboard").is_dir()
+    assert namespace["log"].seen == [0, 50, 100, "finished at 100"]
 
 
 def test_what_is_public_is_named_and_loads():
@@ -38,3 +39,32 @@ def test_what_is_public_is_named_and_loads():
         _ = smspace.no_such_name
     with pytest.raises(TypeError, match="unknown training fields"):
         smspace.fit("grid-seed0-MM", lake=SAMPLES, stepz=10)
+
+
+def test_a_sink_of_ones_own_sees_each_evaluation_after_the_run_folder_committed_it(tmp_path):
+    from smspace.train.run_dir import RunDir
+
+    out = tmp_path / "run"
+
+    class Committed:
+        def __init__(self):
+            self.steps = []
+
+        def on_evaluation(self, evaluation):
+            assert RunDir.open(out).checkpoint_step() == evaluation.step  # in the run before a logger sees it
+            assert evaluation.h.shape == (125, 3) and evaluation.rows[-1]["step"] == evaluation.step
+            self.steps.append(evaluation.step)
+            if evaluation.step == 40:
+                raise ValueError("the logger's server is down")
+
+        def on_finish(self, step, message):
+            self.steps.append("finished")
+
+    sink = Committed()
+    with pytest.raises(ValueError, match="server is down"):
+        smspace.fit("grid-seed0-MM", lake=SAMPLES, out=out, steps=60, eval_every=20, sinks=[sink])
+    assert sink.steps == [0, 20, 40]
+    status = RunDir.open(out).status()
+    assert status["state"] == "failed" and "server is down" in status["message"] and status["step"] == 40
+    resumed = smspace.resume(out, sinks=[])
+    assert [row["step"] for row in resumed.metrics()] == [0, 20, 40, 60]

@@ -9,7 +9,7 @@ run on the CPU.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any
@@ -260,8 +260,12 @@ def claimed(runs: list[RunDir], device: str, threads: int, primary: bool = True)
 # --- one run --------------------------------------------------------------------------------------
 
 
-def fit(cfg: TrainConfig, run: RunDir, resume: bool = False, ranks: Ranks = SINGLE) -> dict[str, Any] | None:
-    """Train (or resume) one run; returns its last metrics row (on rank 0; None on the others)."""
+def fit(
+    cfg: TrainConfig, run: RunDir, resume: bool = False, ranks: Ranks = SINGLE, sinks: Sequence[engine.Sink] = ()
+) -> dict[str, Any] | None:
+    """Train (or resume) one run; returns its last metrics row (on rank 0; None on the others).
+    `sinks`: more places each evaluation goes (a logger of one's own), after the run folder has
+    committed it."""
     torch.set_num_threads(cfg.threads)  # 2 cores: oversubscribed threads made steps 10-40x slower
     device = resolve_device(cfg.device)
     with claimed([run], cfg.device, cfg.threads, ranks.primary), recorded_outcome([run] if ranks.primary else []):
@@ -271,7 +275,7 @@ def fit(cfg: TrainConfig, run: RunDir, resume: bool = False, ranks: Ranks = SING
         learner = engine.SingleLearner(model, optimizer, member.data, ranks, cfg.precision, cfg.compile)
         step = resume_from_folders(learner, [member], [run], device, shape, ranks) if resume else 0
         with peer_errors(ranks):
-            engine.train(learner, [member], step, [RunFolders([run])], ranks=ranks)
+            engine.train(learner, [member], step, [RunFolders([run]), *sinks], ranks=ranks)
     return member.rows[-1] if ranks.primary else None
 
 
