@@ -41,14 +41,10 @@ CATALOG_SCHEMA = pa.schema(
 )
 
 
-def _store(lake: Path | str | Store) -> Store:
-    return lake if isinstance(lake, Store) else open_store(lake)
-
-
 def check_lake(lake: Path | str | Store, create: bool = True) -> Store:
     """The lake must be a folder (created if missing, unless `create` is False: checks that run
     before any write); a file there is a user error."""
-    store = _store(lake)
+    store = open_store(lake)
     if store.is_file():
         raise SmspaceError(f"lake path {store} is a file, not a folder")
     if not create:
@@ -65,9 +61,10 @@ def manifest_versions(lake: Store) -> dict[str, str]:
     return {path.split("/", 1)[0]: tag for path, tag in lake.fingerprints(f"*/{MANIFEST}").items()}
 
 
-def scan_manifests(lake: Path | str | Store, ids: list[str] | None = None) -> tuple[list[Manifest], list[str]]:
+def scan_manifests(lake: Path | str | Store) -> tuple[list[Manifest], list[str]]:
     """The sound manifests of a lake, and one line per dataset folder whose manifest is not."""
-    manifests, broken, _ = _scan(_store(lake), sorted(manifest_versions(_store(lake)) if ids is None else ids))
+    store = open_store(lake)
+    manifests, broken, _ = _scan(store, sorted(manifest_versions(store)))
     return manifests, [f"{display_name(i)}: {why}" for i, why in broken.items()]
 
 
@@ -124,7 +121,7 @@ def rebuild_catalog(lake: Path | str | Store) -> pa.Table:
     It records the manifest version each row was read from, and which datasets were broken: a
     dataset whose manifest was gone when read is recorded neither way, so the next reader finds
     the cache stale and reads it again (a repair that re-commits identical bytes keeps its ETag)."""
-    lake = _store(lake)
+    lake = open_store(lake)
     versions = manifest_versions(lake)
     manifests, broken, gone = _scan(lake, sorted(versions))
     table = _rows(manifests)
@@ -149,7 +146,7 @@ def _cache_holds(table: pa.Table, sources: dict, versions: dict[str, str]) -> bo
 def read_catalog(lake: Path | str | Store) -> pa.Table:
     """The catalog, checked against one listing of the manifests; rebuilt when stale or unreadable.
     A lake that does not exist yet is empty."""
-    lake = _store(lake)
+    lake = open_store(lake)
     if not lake.is_folder():
         return CATALOG_SCHEMA.empty_table()
     versions = manifest_versions(lake)

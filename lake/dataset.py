@@ -41,16 +41,11 @@ def resolve_dataset(ref: str | Path | Store, lake: str | Path | Store | None = N
     raise SmspaceError(f"unknown dataset {str(ref)!r}: not a dataset folder, nor an id in lake {open_lake(lake).url}")
 
 
-def canonical(store: Store) -> str:
-    """How a run config records its dataset: an absolute path, or the URL."""
-    return store.canonical()
-
-
 class Dataset:
     """A complete dataset: its manifest and lazily opened shard readers."""
 
     def __init__(self, where: str | Path | Store):
-        self.store: Store = where if isinstance(where, Store) else open_store(where)
+        self.store: Store = open_store(where)
         self.manifest: Manifest = load_manifest(self.store)
         self._intact: set[str] = set()  # files checked against the manifest in this process
 
@@ -88,15 +83,6 @@ class Dataset:
         except FileNotFoundError:
             raise SmspaceError(f"missing file {self.url}/{name} of dataset {self.manifest.dataset_id}") from None
         return name
-
-    def file(self, name: str) -> Path:
-        """A local file of this dataset, confined to its folder and regular (docs/FORMAT.md)."""
-        if self.store.local_path is None:
-            raise SmspaceError(f"dataset {self.url} is not on this machine")
-        return self.store.local_path / self._checked(name)
-
-    def shard_paths(self) -> list[Path]:
-        return [self.file(s["file"]) for s in self.manifest.shards]
 
     def shard_reader(self, i: int) -> ShardReader:
         """Shard i, checked against its manifest and opened for ranged reads (locally or on object storage)."""

@@ -142,10 +142,10 @@ class Manifest:
     normalisation: dict[str, list[float]]  # m_min, m_max (over m_t), s_min, s_max (over s_t)
     regular_sampling: dict[str, Any]  # file, count, bytes, sha256
     # |shift component| ≤ shift_bound in MEM and MME (the MM shift is one fixed value); recorded so
-    # that validate needs no knowledge of the setups. None only in manifests written before 0.2.
+    # that validate needs no knowledge of the setups. None in manifests written before it was recorded.
     shift_bound: float | None = None
     # the network the setup suggests for its agent: {"encoder_layers": [...]}, so that training on
-    # the dataset needs no knowledge of the setups (None only in manifests written before 0.2)
+    # the dataset needs no knowledge of the setups (None in manifests written before it was recorded)
     network: dict[str, Any] | None = None
     software: dict[str, str] = field(default_factory=software_versions)
 

@@ -11,7 +11,6 @@ import io
 import json
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
@@ -23,7 +22,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from smspace import schemas
 from smspace.common.errors import DatasetCorrupt, SmspaceError, one_line
-from smspace.lake.store import Store, TransferFailed, damaged_transfer, open_store
+from smspace.lake.store import Store, TransferFailed, damaged_transfer
 from smspace.lake.transitions import Transitions
 
 CHUNK_PREFIX = 1 + 8  # a chunk record's opcode and length, before its content
@@ -181,12 +180,6 @@ class ShardReader:
         """A shard whose bytes are in memory (`where` names it in messages): validate reads each
         file once, whole, and checks it from there."""
         return cls(None, where, validate_crcs, data)
-
-    @classmethod
-    def at(cls, path: Path | str) -> ShardReader:
-        """A shard file on this machine."""
-        path = Path(path)
-        return cls(open_store(path.parent), path.name)
 
     def close(self) -> None:
         self._fh.close()

@@ -88,7 +88,7 @@ def _fetch(folder: Store, entry: dict) -> tuple[bytes | None, list[str]]:
 def validate_dataset(folder: Store | Path) -> list[str]:
     """Every problem found, one line each, naming the file; empty when the dataset is sound. Each
     file is fetched once and checked from memory: sha256, every chunk CRC, every batch."""
-    folder = folder if isinstance(folder, Store) else open_store(Path(folder))
+    folder = open_store(folder)
     try:
         manifest = load_manifest(folder)
     except StorageUnreachable:

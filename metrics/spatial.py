@@ -98,11 +98,3 @@ def spatial_scores(h: np.ndarray, p: np.ndarray, alpha: float = ALPHA) -> Spatia
     pairs = n * (n - 1) / 2
     d_topo_value = topo_sum / (max_h * pairs) if max_h > 0 else 0.0
     return SpatialScores(d_topo=d_topo_value, d_metric=metric_sum / (max_p * pairs))
-
-
-def d_topo(h: np.ndarray, p: np.ndarray, alpha: float = ALPHA) -> float:
-    return spatial_scores(h, p, alpha).d_topo
-
-
-def d_metric(h: np.ndarray, p: np.ndarray) -> float:
-    return spatial_scores(h, p).d_metric

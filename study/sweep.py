@@ -104,7 +104,7 @@ def plan_runs(
     """(run folder, step it is at) for every dataset of a planned study. Every run is checked
     before anything is written; then study.json is recorded, new run folders created and
     extended runs record their extension."""
-    out = out if isinstance(out, Store) else open_store(out)
+    out = open_store(out)
     manifests = [load_manifest(folder) for folder in datasets]
     cfgs = [replace(template, seed=m.world_seed).for_dataset(f, m) for f, m in zip(datasets, manifests, strict=True)]
     actions = []
@@ -233,7 +233,7 @@ def prepare(
 ) -> tuple[list[RunDir], list[tuple[list[RunDir], bool]]]:
     """Generate the missing datasets and plan the runs: (every run, the ensembles still to train,
     each with whether it resumes). `checked`: the template `check_terms` already returned."""
-    out = out if isinstance(out, Store) else open_store(out)
+    out = open_store(out)
     template = checked
     if template is None:
         template, change = check_terms(study, out, overwrite)

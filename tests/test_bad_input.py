@@ -126,9 +126,10 @@ def test_shard_of_another_schema_version(lake_copy):
     with pytest.raises(SmspaceError, match=r"shard-00000.mcap is not the file dataset grid-seed3-MM records"):
         Dataset.open("grid-seed3-MM", lake_copy).read_all()  # readers refuse bytes the manifest does not record
     from smspace.lake.shards import ShardReader
+    from smspace.lake.store import open_store
 
     with pytest.raises(SmspaceError, match=r"shard-00000.mcap has schema smspace.v2"):
-        ShardReader.at(shard)  # and a shard opened on its own says what it is
+        ShardReader(open_store(shard.parent), shard.name)  # and a shard opened on its own says what it is
 
 
 def test_manifest_of_another_schema_version(lake_copy):

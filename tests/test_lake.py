@@ -18,6 +18,7 @@ from smspace.datagen.setups import draw_transitions
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import GenConfig
 from smspace.lake.shards import ShardReader
+from smspace.lake.store import open_store
 
 from .conftest import BIN, smgen
 
@@ -132,7 +133,7 @@ def test_killed_generation_resumes_to_identical_bytes(tmp_path):
     assert 5 <= len(survivors) < 98, "the kill must land mid-generation"
     assert not (folder / "manifest.json").exists()
     for path in survivors:  # whatever carries a final name is complete
-        with ShardReader.at(path) as reader:
+        with ShardReader(open_store(path.parent), path.name) as reader:
             assert sum(len(b.transitions) for b in reader.blocks()) == 4096
     listed = smgen("ls", "--lake", killed_lake).output
     assert "grid-seed4-MME" not in listed

@@ -41,7 +41,7 @@ def test_generic_protobuf_decoder_reads_the_embedded_schema(grid_lake):
     """mcap-protobuf-support builds the message class from the file's FileDescriptorSet alone."""
     ds = Dataset.open("grid-seed3-MME", grid_lake)
     ours = ds.read_all()
-    with open(ds.shard_paths()[0], "rb") as fh:
+    with open(ds.store.local_path / ds.manifest.shards[0]["file"], "rb") as fh:
         reader = make_reader(fh, decoder_factories=[DecoderFactory()], validate_crcs=True)
         schema, _, _, msg = next(iter(reader.iter_decoded_messages(log_time_order=False)))
     assert schema.name == "smspace.v1.TransitionBatch"

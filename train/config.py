@@ -14,7 +14,6 @@ from typing import Any
 
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError
-from smspace.lake.dataset import canonical
 from smspace.lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
 from smspace.lake.store import Store, open_store
 
@@ -141,7 +140,7 @@ class TrainConfig:
         records for the setup's agent."""
         return replace(
             self.for_setup(manifest.setup, manifest.transitions, default_encoder_layers(manifest)),
-            dataset=canonical(folder if isinstance(folder, Store) else open_store(Path(folder))),
+            dataset=open_store(folder).canonical(),
             dataset_id=manifest.dataset_id,
             dataset_config_hash=manifest.config_hash,
             dataset_shards_sha256=manifest.shards_digest,
@@ -149,7 +148,7 @@ class TrainConfig:
         )
 
 
-PAPER_ENCODERS = {3: (150, 100, 50), 6: (500, 400, 300, 200)}  # by motors, for manifests of smspace 0.1
+PAPER_ENCODERS = {3: (150, 100, 50), 6: (500, 400, 300, 200)}  # by motors, for manifests that do not record their network
 
 
 def default_encoder_layers(manifest) -> tuple[int, ...]:

@@ -75,13 +75,13 @@ def learning_rate(cfg: TrainConfig, step: int) -> float:
 # position, "step", "elapsed_s", LAYOUT: "in-out"}: the same for a lone run and for each run of an
 # ensemble, so that either continues the other.
 
-LAYOUT = "layout"  # "in-out": dense weights stored (in, out); absent in checkpoints of smspace 0.1 (out, in)
+LAYOUT = "layout"  # "in-out": dense weights stored (in, out); absent in checkpoints of the first layout (out, in)
 
 
 def check_checkpoint(checkpoint: dict[str, Any], cfg: TrainConfig, n_motor: int, n_sensor: int, where: str) -> int:
     """The step of a checkpoint that belongs to this run's network, or one line saying why not (a
     checkpoint of another run, another N_h, other layers or another model) before anything is
-    loaded into a model. A checkpoint in smspace 0.1's layout is converted."""
+    loaded into a model. A checkpoint in the first layout is converted."""
     with torch.device("meta"):  # shapes only: nothing is allocated
         expected = network(cfg, n_motor, n_sensor)
     shapes = {name: tuple(t.shape) for name, t in expected.state_dict().items()}

@@ -117,7 +117,7 @@ def run_dataset(cfg: TrainConfig, where: str) -> Dataset:
     recorded = (cfg.dataset_config_hash, cfg.dataset_shards_sha256)
     found = (ds.manifest.config_hash, ds.manifest.shards_digest)
     for name, was, now in zip(("config hash", "shard hashes"), recorded, found, strict=True):
-        if was and was != now:  # empty: a config written by hand or by smspace 0.1
+        if was and was != now:  # empty: a config written by hand or before it recorded them
             raise SmspaceError(
                 f"dataset {ds.url} is not the one {where} was trained on (its {name} changed); train a new run instead"
             )

@@ -74,7 +74,7 @@ def load_runs(paths: list[Path]) -> list[RunData]:
         cfg = run.config
         if cfg.mode and cfg.setup:
             mode, setup = cfg.mode, cfg.setup
-        else:  # run folders of smspace 0.1 lack them
+        else:  # configs written before they recorded them lack them
             manifest = Dataset(cfg.dataset).manifest
             mode, setup = manifest.mode, manifest.setup
         recorded = run.recorded_keys()

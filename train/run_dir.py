@@ -10,7 +10,7 @@ import io
 import json
 import os
 import pickle
-import re  # only for its exception type: checkpoints load with weights_only=True
+import re
 import socket
 import uuid
 from dataclasses import replace
@@ -79,7 +79,7 @@ class RunDir:
     trims what later evaluations wrote)."""
 
     def __init__(self, where: Path | str | Store):
-        self.store: Store = where if isinstance(where, Store) else open_store(where)
+        self.store: Store = open_store(where)
         self._lock: HeldLock | None = None
         # while this process trains the run: the version of each file it last saw or wrote (None:
         # absent), so that on object storage it writes over its own versions only (lake/store.py)
