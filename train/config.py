@@ -148,7 +148,8 @@ class TrainConfig:
         )
 
 
-PAPER_ENCODERS = {3: (150, 100, 50), 6: (500, 400, 300, 200)}  # by motors, for manifests that do not record their network
+# by motors, for manifests that do not record their network
+PAPER_ENCODERS = {3: (150, 100, 50), 6: (500, 400, 300, 200)}
 
 
 def default_encoder_layers(manifest) -> tuple[int, ...]:
