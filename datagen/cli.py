@@ -91,7 +91,7 @@ def generate(
     from smspace.datagen.generate import Share
     from smspace.datagen.generate import generate as run
     from smspace.datagen.setups import get_setup, parse_modes
-    from smspace.lake.dataset import open_lake
+    from smspace.lake.dataset import lake_store
 
     setup = get_setup(setup_name)
     if seed + worlds - 1 > SEED_MAX:
@@ -99,7 +99,7 @@ def generate(
     modes = parse_modes(mode)
     n = setup.default_transitions if transitions is None else transitions
     shard_size = setup.default_shard_size if shard_size is None else shard_size
-    store = open_lake(lake)
+    store = lake_store(lake)
     share = Share(rank, world_size)
     options = ExecutorOptions(workers=workers or default_workers(), gpus_per_task=gpus_per_task)
     seeds = range(seed, seed + worlds)
@@ -139,9 +139,9 @@ def _echo_committed(store, results) -> None:
 def finalize(datasets, lake) -> None:
     """Commit datasets written by the ranks of a job array, once every part is present and valid."""
     from smspace.datagen.generate import finalize as run
-    from smspace.lake.dataset import open_lake, resolve_dataset
+    from smspace.lake.dataset import lake_store, resolve_dataset
 
-    store = open_lake(lake)
+    store = lake_store(lake)
     _echo_committed(store, run(store, [resolve_dataset(ref, store) for ref in datasets]))
 
 
@@ -152,9 +152,9 @@ def finalize(datasets, lake) -> None:
 def ls_(lake, as_json) -> None:
     """List the datasets of a lake (from its catalog)."""
     from smspace.lake.catalog import manifest_versions, read_catalog
-    from smspace.lake.dataset import open_lake
+    from smspace.lake.dataset import lake_store
 
-    store = open_lake(lake)
+    store = lake_store(lake)
     if store.is_file():
         raise SmspaceError(f"lake path {store} is a file, not a folder")
     if not store.is_folder():  # a mistyped name must not look like an empty lake

@@ -38,7 +38,7 @@ def _transitions(task: Task) -> int:
 
 
 @contextlib.contextmanager
-def open_executor(
+def open_part_writers(
     executor: str, setup: str, options: ExecutorOptions, probe_world: int | None = None
 ) -> Iterator[Runner]:
     """A runner of tasks, once the setup's pre-flight passed where the parts will run (before

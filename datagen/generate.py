@@ -21,7 +21,7 @@ import numpy as np
 from smspace import schemas
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError, one_line
-from smspace.datagen.executors import ExecutorOptions, open_executor
+from smspace.datagen.executors import ExecutorOptions, open_part_writers
 from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
 from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.catalog import check_lake, rebuild_catalog
@@ -316,7 +316,7 @@ def generate(
     options = options or ExecutorOptions(workers=workers)
     with contextlib.ExitStack() as held:
         probe = world_seeds[0] if world_seeds else None  # the setup contract on a probe batch, before any write
-        run_parts = held.enter_context(open_executor(executor, setup, options, probe))
+        run_parts = held.enter_context(open_part_writers(executor, setup, options, probe))
         lake = check_lake(lake, create=False)
         sizes = transitions, shard_size
         configs = [GenConfig(setup, mode, seed, *sizes, plugin=record) for seed in world_seeds for mode in modes]

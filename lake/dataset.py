@@ -16,10 +16,8 @@ from smspace.lake.store import Store, is_url, open_store
 from smspace.lake.transitions import Transitions
 
 
-def open_lake(ref: str | Path | Store | None) -> Store:
+def lake_store(ref: str | Path | Store | None) -> Store:
     """The lake named by --lake, or the default one."""
-    if isinstance(ref, Store):
-        return ref
     return open_store(ref if ref not in (None, "") else default_lake())
 
 
@@ -35,10 +33,10 @@ def resolve_dataset(ref: str | Path | Store, lake: str | Path | Store | None = N
     if _is_dataset(direct):
         return direct
     if not is_url(ref) and "/" not in str(ref) and str(ref) not in ("", ".", ".."):
-        candidate = open_lake(lake).child(str(ref))
+        candidate = lake_store(lake).child(str(ref))
         if candidate.is_folder():
             return candidate
-    raise SmspaceError(f"unknown dataset {str(ref)!r}: not a dataset folder, nor an id in lake {open_lake(lake).url}")
+    raise SmspaceError(f"unknown dataset {str(ref)!r}: not a dataset folder, nor an id in lake {lake_store(lake).url}")
 
 
 class Dataset:

@@ -12,7 +12,7 @@ import pyarrow as pa
 
 from smspace.lake.catalog import check_lake, read_catalog
 from smspace.lake.dataset import Dataset, resolve_dataset
-from smspace.lake.dataset import open_lake as _open_store
+from smspace.lake.dataset import lake_store as _open_store
 from smspace.lake.store import Store
 from smspace.lake.transitions import parse_modes
 from smspace.train.run_dir import RunDir

@@ -107,7 +107,7 @@ def sweep(
     flags, or from STUDY_FILE (TOML: docs/STUDIES.md), which may also vary any training field."""
     from smspace.common.cli import default_workers
     from smspace.datagen.setups import get_setup
-    from smspace.lake.dataset import open_lake
+    from smspace.lake.dataset import lake_store
     from smspace.lake.transitions import parse_modes
     from smspace.study.sweep import sweep as run_sweep
     from smspace.train.engine import resolve_device
@@ -136,7 +136,7 @@ def sweep(
             mode_list,
             list(range(first_world, first_world + worlds)),
             template,
-            open_lake(lake),
+            lake_store(lake),
             out,
             transitions,
             gen_workers or default_workers(),
@@ -156,7 +156,7 @@ STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions"
 
 def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run) -> None:
     """`smtrain sweep STUDY.toml`: what the study computes comes from the file alone."""
-    from smspace.lake.dataset import open_lake
+    from smspace.lake.dataset import lake_store
     from smspace.study.run import dry_run as plan_only
     from smspace.study.run import run_study
 
@@ -165,7 +165,7 @@ def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen
     if given:
         raise SmspaceError(f"{', '.join(given)}: set in the study file {study_file}, not on the command line")
     if dry_run:
-        for line in plan_only(study_file, open_lake(lake), out, workers, overwrite):
+        for line in plan_only(study_file, lake_store(lake), out, workers, overwrite):
             click.echo(line)
         return
     ex = executor if on_command_line(ctx, "executor") else None
@@ -173,7 +173,7 @@ def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen
         f"interrupted; the study's runs keep their last checkpoints: smtrain sweep {study_file} resumes them"
     ):
         runs = run_study(
-            study_file, open_lake(lake), out, overwrite, workers, gen_workers, ex,
+            study_file, lake_store(lake), out, overwrite, workers, gen_workers, ex,
             notify=lambda line: click.echo(line, err=True),
         )  # fmt: skip
     for run in runs:
