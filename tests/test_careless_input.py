@@ -284,3 +284,33 @@ def test_outputs_never_land_inside_their_inputs(tmp_path):
                    "--eval-every", 10).returncode == 0  # fmt: skip
     line = one_error(run_cmd("smtrain", "report", run, "--out", run / "report"))
     assert "which it reports on" in line and not (run / "report").exists(), line
+
+
+def _bounded_fields() -> list:
+    from smspace.train.config import flag_fields
+
+    return [f for f in flag_fields() if f.metadata["min"] is not None or f.metadata["max"] is not None]
+
+
+@pytest.mark.parametrize("field", _bounded_fields(), ids=lambda f: f.name)
+def test_a_bound_declared_once_holds_for_flags_study_files_and_the_api(tmp_path, field):
+    """Training fields were validated three times (click types, the study-file reader, the config),
+    and had drifted. Each bound is declared once, on the field (train/config.py), and refuses the
+    same value on the command line, in a study file and from Python."""
+    import smspace
+    from smspace.study.file import NOT_TRAINABLE
+    from smspace.train.config import flag_name
+
+    low, high = field.metadata["min"], field.metadata["max"]
+    value = high + 1 if high is not None else low - 1
+    flag = flag_name(field)
+    out = tmp_path / "run"
+    line = one_error(run_cmd("smtrain", "fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", out, flag, value))
+    assert flag in line and str(high if high is not None else low) in line, line
+    study = tmp_path / "study.toml"
+    study.write_text(f'[study]\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 3000\n[train]\n{field.name} = {value}\n')
+    line = one_error(run_cmd("smtrain", "sweep", study, "--dry-run", "--lake", tmp_path / "lake"))
+    assert f"train.{field.name}" in line and (str(value) in line or field.name in NOT_TRAINABLE), line
+    with pytest.raises(smspace.SmspaceError, match=f"{flag} must be an integer in"):
+        smspace.fit("grid-seed0-MM", lake=SAMPLES, out=out, **{field.name: value})
+    assert not out.exists() and not (tmp_path / "lake").exists()

@@ -90,6 +90,13 @@ class TrainConfig:
     sessions: list[dict[str, Any]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
+        for f in fields(self):  # the bounds each field declares hold for flags, study files and the API alike
+            low, high = f.metadata.get("min"), f.metadata.get("max")
+            value = getattr(self, f.name)
+            if (low is not None or high is not None) and not _within(value, low, high):
+                raise SmspaceError(
+                    f"{flag_name(f)} must be an integer in {low}..{'' if high is None else high}, got {value!r}"
+                )
         for name in ("lr_start", "lr_end"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
@@ -163,6 +170,17 @@ def default_encoder_layers(manifest) -> tuple[int, ...]:
 def model_names() -> tuple[str, ...]:
     """Every model a run may name: the built-in one and the registered ones (not loaded)."""
     return (DEFAULT_MODEL, *sorted(plugins.others(ENTRY_POINTS, "model", (DEFAULT_MODEL,))))
+
+
+def flag_name(f) -> str:
+    """The command-line flag of a config field: `--field-name` unless the field names another."""
+    return f.metadata["flag"] or "--" + f.name.replace("_", "-")
+
+
+def _within(value: Any, low: int | None, high: int | None) -> bool:
+    if not isinstance(value, int) or isinstance(value, bool):
+        return False
+    return (low is None or value >= low) and (high is None or value <= high)
 
 
 def flag_fields() -> list:

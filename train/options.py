@@ -7,13 +7,13 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import MISSING, Field
+from dataclasses import MISSING
 from typing import TYPE_CHECKING
 
 import click
 
 from smspace.common.completion import complete_devices
-from smspace.train.config import MAX_LAYERS, MAX_WIDTH, PRECISIONS
+from smspace.train.config import MAX_LAYERS, MAX_WIDTH, PRECISIONS, flag_name
 
 if TYPE_CHECKING:
     from smspace.train.config import TrainConfig
@@ -77,10 +77,6 @@ class PositiveFinite(click.ParamType):
 
 
 POSITIVE_FINITE = PositiveFinite()
-
-
-def flag_name(f: Field) -> str:
-    return f.metadata["flag"] or "--" + f.name.replace("_", "-")
 
 
 def config_options(exclude: tuple[str, ...] = ()) -> Callable:
