@@ -21,6 +21,12 @@ def smgen(*args: str):
     return CliRunner().invoke(main, [str(a) for a in args], prog_name="smgen")
 
 
+def smtrain(*args: str):
+    from smspace.study.cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args], prog_name="smtrain")
+
+
 def run_cmd(*args: str, timeout: float = 120, **kwargs) -> subprocess.CompletedProcess:
     """Run a console script of this environment as a real process."""
     cmd = [str(BIN / args[0]), *map(str, args[1:])]

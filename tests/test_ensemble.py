@@ -9,19 +9,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from click.testing import CliRunner
 
-from smspace.study.cli import main as smtrain_main
 from smspace.train.config import TrainConfig
 from smspace.train.fit import fit, train_ensemble
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES
+from .conftest import SAMPLES, smtrain
 from .numerics import assert_same_trajectory, assert_same_weights, relative_distance
-
-
-def smtrain(*args):
-    return CliRunner().invoke(smtrain_main, [str(a) for a in args], prog_name="smtrain")
 
 
 def config(mode: str, seed: int, steps: int = 60, eval_every: int = 10) -> TrainConfig:

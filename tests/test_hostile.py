@@ -11,16 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from click.testing import CliRunner
 
-from smspace.study.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 
-from .conftest import BIN, SAMPLES, smgen
-
-
-def smtrain(*args):
-    return CliRunner().invoke(smtrain_main, [str(a) for a in args], prog_name="smtrain")
+from .conftest import BIN, SAMPLES, smgen, smtrain
 
 
 @pytest.fixture

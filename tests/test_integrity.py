@@ -9,19 +9,13 @@ import shutil
 from pathlib import Path
 
 import pytest
-from click.testing import CliRunner
 
 from smspace.lake.shards import Block, ShardReader, shard_bytes
 from smspace.lake.transitions import Transitions
-from smspace.study.cli import main as smtrain_main
 
-from .conftest import SAMPLES, smgen
+from .conftest import SAMPLES, smgen, smtrain
 
 SHARD = "shard-00001.mcap"  # evaluation reads shard 0: only training meets this one
-
-
-def smtrain(*args):
-    return CliRunner().invoke(smtrain_main, [str(a) for a in args], prog_name="smtrain")
 
 
 def forged(original: bytes, folder: Path) -> bytes:

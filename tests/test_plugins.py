@@ -8,27 +8,17 @@ import json
 
 import pytest
 import torch
-from click.testing import CliRunner
 
-from smspace.datagen.cli import main as smgen_main
-from smspace.study.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 
+from .conftest import smgen, smtrain
 from .numerics import assert_same_trajectory
-
-
-def smgen(*args):
-    return CliRunner().invoke(smgen_main, [str(a) for a in args], prog_name="smgen")
-
-
-def smtrain(*args):
-    return CliRunner().invoke(smtrain_main, [str(a) for a in args], prog_name="smtrain")
 
 
 @pytest.fixture(scope="module")
 def line_lake(tmp_path_factory):
     from smspace.datagen.setups import setup_names
-    from smspace.train.model import model_names
+    from smspace.train.config import model_names
 
     if "line" not in setup_names() or "shallow" not in model_names():
         pytest.fail("examples/plugin-demo is not installed: run `bash scripts/setup.sh`")

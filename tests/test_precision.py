@@ -10,8 +10,7 @@ import pytest
 from smspace.train.precision import resolve
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES, run_cmd
-from .test_train import smtrain
+from .conftest import SAMPLES, run_cmd, smtrain
 
 
 def test_auto_is_decided_when_the_run_is_created_and_kept_on_resume(tmp_path):

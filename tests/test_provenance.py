@@ -11,8 +11,7 @@ import torch
 
 from smspace.train.run_dir import RunDir
 
-from .conftest import ROOT, SAMPLES
-from .test_train import smtrain
+from .conftest import ROOT, SAMPLES, smtrain
 
 
 def test_each_training_session_is_recorded_and_shown(tmp_path):

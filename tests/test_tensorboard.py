@@ -14,8 +14,7 @@ from tensorboard.plugins.projector.projector_config_pb2 import ProjectorConfig
 
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES
-from .test_train import smtrain
+from .conftest import SAMPLES, smtrain
 
 COLUMNS = {"loss/eval": "eval_loss", "loss/train": "train_loss", "space/D_topo": "d_topo",
            "space/D_metric": "d_metric", "lr": "lr"}  # fmt: skip

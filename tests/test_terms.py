@@ -5,16 +5,9 @@ from __future__ import annotations
 
 import json
 
-from click.testing import CliRunner
-
-from smspace.study.cli import main as smtrain_main
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES
-
-
-def smtrain(*args):
-    return CliRunner().invoke(smtrain_main, [str(a) for a in args], prog_name="smtrain")
+from .conftest import SAMPLES, smtrain
 
 
 def error_line(result) -> str:
