@@ -15,6 +15,17 @@ SAMPLES = ROOT / "data" / "samples"
 BIN = Path(sys.executable).parent
 
 
+GRID = ["--setup", "grid", "--transitions", "6000", "--shard-size", "2500", "--seed", "3"]
+
+
+def local_files(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def dataset_files(files: dict[str, bytes], dataset: str) -> dict[str, bytes]:
+    return {k: v for k, v in files.items() if k.startswith(f"{dataset}/")}
+
+
 def smgen(*args: str):
     from smspace.datagen.cli import main
 

@@ -132,3 +132,16 @@ def moto_s3(log: Path) -> Iterator[dict[str, str]]:
     finally:
         stop_group(proc)
         assert not tree(proc.pid)
+
+
+def s3fs_for(env: dict[str, str]):
+    import s3fs
+
+    return s3fs.S3FileSystem(
+        endpoint_url=env["AWS_ENDPOINT_URL"], key=env["AWS_ACCESS_KEY_ID"], secret=env["AWS_SECRET_ACCESS_KEY"]
+    )
+
+
+def remote_files(env, prefix: str) -> dict[str, bytes]:
+    fs = s3fs_for(env)
+    return {p[len(prefix) + 1 :]: fs.cat_file(p) for p in fs.find(prefix)}

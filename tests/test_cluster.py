@@ -12,9 +12,8 @@ import time
 import psutil
 import pytest
 
-from tests.conftest import BIN, same_but_provenance, smgen
+from tests.conftest import BIN, dataset_files, local_files, same_but_provenance, smgen
 from tests.servers import assert_loopback_only, processes_marked, tree
-from tests.test_s3 import dataset_files, local_files
 
 GRID = ["--setup", "grid", "--transitions", "6000", "--shard-size", "2500", "--seed", "3"]
 

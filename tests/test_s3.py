@@ -7,16 +7,13 @@ import os
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 import pytest
 
-from tests.conftest import BIN
-from tests.servers import free_port, moto_s3, stop_group
+from tests.conftest import BIN, GRID, dataset_files, local_files
+from tests.servers import free_port, moto_s3, remote_files, s3fs_for, stop_group
 
 pytestmark = pytest.mark.slow
-
-GRID = ["--setup", "grid", "--transitions", "6000", "--shard-size", "2500", "--seed", "3"]
 
 
 @pytest.fixture(scope="module")
@@ -28,27 +25,6 @@ def s3(tmp_path_factory):
 def cli(env: dict[str, str], *args, timeout: float = 300) -> subprocess.CompletedProcess:
     cmd = [str(BIN / str(args[0])), *map(str, args[1:])]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env={**os.environ, **env})
-
-
-def s3fs_for(env: dict[str, str]):
-    import s3fs
-
-    return s3fs.S3FileSystem(
-        endpoint_url=env["AWS_ENDPOINT_URL"], key=env["AWS_ACCESS_KEY_ID"], secret=env["AWS_SECRET_ACCESS_KEY"]
-    )
-
-
-def remote_files(env, prefix: str) -> dict[str, bytes]:
-    fs = s3fs_for(env)
-    return {p[len(prefix) + 1 :]: fs.cat_file(p) for p in fs.find(prefix)}
-
-
-def local_files(folder: Path) -> dict[str, bytes]:
-    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def dataset_files(files: dict[str, bytes], dataset: str) -> dict[str, bytes]:
-    return {k: v for k, v in files.items() if k.startswith(f"{dataset}/")}
 
 
 def test_grid_all_modes_on_s3_equal_local_and_read_back(s3, grid_lake, tmp_path):

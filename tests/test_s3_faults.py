@@ -12,10 +12,9 @@ import time
 
 import pytest
 
-from tests.conftest import BIN
+from tests.conftest import BIN, GRID
 from tests.faults import fault_proxy
-from tests.servers import moto_s3
-from tests.test_s3 import GRID, s3fs_for
+from tests.servers import moto_s3, s3fs_for
 
 pytestmark = pytest.mark.slow
 FAST = {"SMSPACE_S3_CONNECT_TIMEOUT": "1", "SMSPACE_S3_READ_TIMEOUT": "2", "SMSPACE_S3_ATTEMPTS": "2"}
