@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import os
 import re
 import subprocess
 import sys
@@ -106,3 +107,41 @@ def test_the_command_line_starts_without_torch():
     )
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0 and done.stdout.strip().splitlines()[-1] == "[]", done.stdout + done.stderr
+
+
+def test_the_engine_imports_no_run_folder_lake_or_launcher():
+    """The training engine is read in one pass: what it trains comes in as members, what it makes
+    leaves through sinks; run folders, the lake and the launchers are its callers' business."""
+    names = imported_modules(ROOT / "train" / "engine.py")
+    banned = ("smspace.lake", "smspace.train.run_dir", "smspace.train.fit", "smspace.train.launch",
+              "smspace.train.cli", "smspace.train.loader", "smspace.study", "smspace.datagen")  # fmt: skip
+    assert not [n for n in names if n.startswith(banned)], names
+    fit_imports = imported_modules(ROOT / "train" / "fit.py")
+    assert not [n for n in fit_imports if n.startswith(("smspace.train.cli", "smspace.train.launch"))], fit_imports
+
+
+def test_smtrain_fit_reaches_its_first_step_through_four_modules_of_train(tmp_path, monkeypatch):
+    """cli -> fit -> engine -> model, nothing in between, nothing crossing back."""
+    import traceback
+
+    from smspace.train import model
+
+    from .conftest import SAMPLES, smtrain
+
+    stacks: list[list[str]] = []
+    real_forward = model.SensorimotorNet.forward
+
+    def forward(self, *args):
+        frames = traceback.extract_stack()
+        if not stacks and any(f.name == "train_step" for f in frames):  # the first optimizer step
+            stacks.append([f.filename for f in frames])
+        return real_forward(self, *args)
+
+    monkeypatch.setattr(model.SensorimotorNet, "forward", forward)
+    out = tmp_path / "run"
+    result = smtrain("fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", out, "--steps", 2, "--eval-every", 1)
+    assert result.exit_code == 0, result.output
+    train_dir = str(ROOT / "train")
+    chain = list(dict.fromkeys(os.path.basename(f) for f in stacks[0] if f.startswith(train_dir)))
+    assert chain == ["cli.py", "fit.py", "engine.py"], chain  # and then model.py's forward: four modules
+    assert real_forward.__module__ == "smspace.train.model"
