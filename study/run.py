@@ -96,8 +96,7 @@ def run_study(
     check_apart(out, lake)
     combos = combinations(study, out)
     checked = [check_terms(c.plan, c.out, overwrite) for c in combos]  # every refusal before any write
-    for setup in dict.fromkeys(c.plan.setup for c in combos):
-        check_disk(lake, setup, study.modes, study.world_seeds, combos[0].plan.n_transitions)
+    _refuse_what_the_lake_cannot_hold(lake, study, combos)
     for line in study_changes(study, out, overwrite):
         notify(line)
     for _, change in checked:
@@ -188,6 +187,7 @@ def dry_run(
     combos = combinations(study, out)
     for combo in combos:
         check_terms(combo.plan, combo.out, overwrite)  # what a real run would refuse
+    _refuse_what_the_lake_cannot_hold(lake, study, combos)
     setups = list(dict.fromkeys(combo.plan.setup for combo in combos))
     worlds = f"{study.seed}..{study.seed + study.worlds - 1}"
     lines = [
@@ -239,7 +239,7 @@ def dry_run(
             f"  {label}: {len(states)} runs, {run_steps} run-steps to train, {per_step * 1e3:.3g} ms per run-step "
             f"in ensembles of {size} measured now, {duration(seconds)} on {workers} worker(s)"
         )
-    _refuse_what_the_disks_cannot_hold(lake, gen_bytes, out, total_bytes)
+    _refuse_what_run_folders_cannot_hold(out, total_bytes)
     lines.append(f"runs: {counts['new']} new, {counts['resume']} to resume, {counts['finished']} finished")
     lines.append(f"disk: about {_size(gen_bytes)} in the lake and {_size(total_bytes)} of run folders")
     lines.append(
@@ -249,15 +249,17 @@ def dry_run(
     return lines
 
 
-def _refuse_what_the_disks_cannot_hold(lake: Store, lake_bytes: float, out: Store, run_bytes: float) -> None:
-    """A budget of what cannot be stored is no plan: generation would refuse it (its own disk
-    check), and run folders would fill their disk part-way. Object storage has no such limit."""
-    lake_free, out_free = lake.free_bytes(), out.free_bytes()
-    if lake_free is not None and lake_bytes > lake_free:
-        raise SmspaceError(
-            f"this study needs about {_size(lake_bytes)} of datasets; the disk of {lake.url} has "
-            f"{_size(lake_free)} free (generation would refuse it)"
-        )
+def _refuse_what_the_lake_cannot_hold(lake: Store, study: StudyFile, combos: list[Combination]) -> None:
+    """Generation's own disk check (datagen/generate.py), made before the study writes its records:
+    the run and its dry run refuse alike."""
+    for setup in dict.fromkeys(c.plan.setup for c in combos):
+        check_disk(lake, setup, study.modes, study.world_seeds, combos[0].plan.n_transitions)
+
+
+def _refuse_what_run_folders_cannot_hold(out: Store, run_bytes: float) -> None:
+    """A budget of what cannot be stored is no plan: run folders would fill their disk part-way.
+    Object storage has no such limit."""
+    out_free = out.free_bytes()
     if out_free is not None and run_bytes > out_free:
         raise SmspaceError(
             f"this study needs about {_size(run_bytes)} of run folders; "
