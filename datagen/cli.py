@@ -10,7 +10,6 @@ import click
 
 from smspace.common.cli import (
     LAKE_OPTION,
-    MAX_WORKERS,
     OneLineErrors,
     default_workers,
     display_name,
@@ -19,12 +18,19 @@ from smspace.common.cli import (
     friendly_errors,
     on_interrupt,
 )
-from smspace.common.completion import comma_list_completer, complete_datasets
+from smspace.common.completion import complete_datasets
 from smspace.common.errors import SmspaceError
 from smspace.common.rerun_output import view_options
-from smspace.datagen.setups import SETUPS, setup_names
-from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
-from smspace.lake.transitions import MODES
+from smspace.datagen.options import (
+    check_seed_range,
+    first_seed_option,
+    generator_workers_option,
+    modes_option,
+    setup_option,
+    transitions_option,
+    worlds_option,
+)
+from smspace.lake.manifest import dataset_id
 
 
 @click.group(name="smgen", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
@@ -34,29 +40,13 @@ def main() -> None:
 
 
 @main.command()
-@click.option(
-    "--setup",
-    "setup_name",
-    type=click.Choice(setup_names()),
-    required=True,
-    help="; ".join(f"{s.name}: {s.description}" for s in SETUPS.values()) + "; or a setup a plugin registers",
-)
-@click.option(
-    "--mode",
-    required=True,
-    shell_complete=comma_list_completer(MODES),
-    help="MEM, MM, MME, several separated by commas, or all.",
-)
-@click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default: 150000].")
-@click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=1, help="Number of worlds; seeds SEED, SEED+1, …")
-@click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, help="Seed of the first world.")
+@setup_option(required=True)
+@modes_option("--mode", "mode", required=True)
+@transitions_option()
+@worlds_option(default=1)
+@first_seed_option("seed")
 @LAKE_OPTION
-@click.option(
-    "--workers",
-    type=click.IntRange(1, MAX_WORKERS),
-    default=None,
-    help="Worker processes [default: this machine's cores; bytes do not depend on it].",
-)
+@generator_workers_option("--workers", "workers")
 @click.option("--shard-size", type=int, default=None, help="Transitions per shard [grid 32768, arm 8192].")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
 @executor_option("the parts are drawn")
@@ -94,8 +84,7 @@ def generate(
     from smspace.lake.dataset import lake_store
 
     setup = get_setup(setup_name)
-    if seed + worlds - 1 > SEED_MAX:
-        raise SmspaceError(f"--seed {seed} with --worlds {worlds} passes the largest world seed, {SEED_MAX}")
+    check_seed_range(seed, worlds)
     modes = parse_modes(mode)
     n = setup.default_transitions if transitions is None else transitions
     shard_size = setup.default_shard_size if shard_size is None else shard_size
@@ -118,7 +107,7 @@ def generate(
             notify=lambda line: click.echo(line, err=True),
         )
     if not share.whole:
-        ids = " ".join(f"{setup.name}-seed{s}-{m}" for s in seeds for m in modes)
+        ids = " ".join(dataset_id(setup.name, s, m) for s in seeds for m in modes)
         click.echo(
             f"rank {rank} of {world_size}: parts written; once every rank is done: smgen finalize {ids}", err=True
         )
@@ -221,14 +210,8 @@ def validate(datasets, lake) -> None:
 
 @main.command()
 @click.argument("dataset", required=False, shell_complete=complete_datasets)
-@click.option(
-    "--setup",
-    "setup_name",
-    type=click.Choice(setup_names()),
-    default=None,
-    help="Preview a world without a dataset (with --seed).",
-)
-@click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, show_default=True)
+@setup_option(help="Preview a world without a dataset (with --seed).")
+@first_seed_option("seed", help="The world to preview (with --setup).")
 @LAKE_OPTION
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder for the PNGs.")
 @click.option("--frames", "n_frames", type=click.IntRange(min=1, max=256), default=64, show_default=True)

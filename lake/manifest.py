@@ -36,6 +36,11 @@ MAX_REGULAR = 1 << 26  # regular-sampling states (15625 for six motors)
 SHARD_FILE = re.compile(r"shard-\d{5}\.mcap")
 
 
+def dataset_id(setup: str, world_seed: int, mode: str) -> str:
+    """The lake's name for one (setup, world, mode) dataset: what generation writes and training finds."""
+    return f"{setup}-seed{world_seed}-{mode}"
+
+
 @dataclass(frozen=True)
 class GenConfig:
     """Everything a dataset's bytes depend on (the worker count is deliberately absent)."""
@@ -52,7 +57,7 @@ class GenConfig:
 
     @property
     def dataset_id(self) -> str:
-        return f"{self.setup}-seed{self.world_seed}-{self.mode}"
+        return dataset_id(self.setup, self.world_seed, self.mode)
 
     @property
     def n_shards(self) -> int:

@@ -108,8 +108,7 @@ def fit(
         raise TypeError(f"fit() got unknown training fields {unknown}; choose from {sorted(names)}")
     template = TrainConfig(dataset="", **flags)
     ds = load_dataset(dataset, lake)
-    given = ["--steps"] if "steps" in flags else []
-    plan = plan_fit(template, ds.url, None, None if out is None else str(out), None, overwrite, given, 1)
+    plan = plan_fit(template, ds.url, None, None if out is None else str(out), None, overwrite, frozenset(flags), 1)
     run = plan.start()
     run_fit(plan.cfg, run, sinks=sinks)
     return Run(run.store)
@@ -123,7 +122,7 @@ def resume(run: str | Path | RunDir, steps: int | None = None, sinks: Sequence[S
 
     where = str(run.path) if isinstance(run, RunDir) else str(run)
     template = TrainConfig(dataset="", **({} if steps is None else {"steps": steps}))
-    plan = plan_fit(template, None, None, None, where, False, ["--steps"] if steps is not None else [], 1)
+    plan = plan_fit(template, None, None, None, where, False, frozenset({"steps"} if steps is not None else ()), 1)
     started = plan.start()
     run_fit(plan.cfg, started, resume=True, sinks=sinks)
     return Run(started.store)

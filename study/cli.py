@@ -19,49 +19,29 @@ from smspace.common.cli import (
     friendly_errors,
     on_interrupt,
 )
-from smspace.common.completion import comma_list_completer
 from smspace.common.errors import SmspaceError
-from smspace.datagen.setups import setup_names
-from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
-from smspace.lake.transitions import MODES
-from smspace.train.cli import main, say_precision
-from smspace.train.config import RUNS
-from smspace.train.options import (
-    config_from_flags,
-    config_options,
-    flag_fields_of_config,
-    flag_name,
-    given_fields,
-    on_command_line,
+from smspace.datagen.options import (
+    check_seed_range,
+    first_seed_option,
+    generator_workers_option,
+    modes_option,
+    setup_option,
+    transitions_option,
+    worlds_option,
 )
+from smspace.train.cli import main, say_precision
+from smspace.train.config import RUNS, flag_fields, flag_name
+from smspace.train.options import config_from_flags, config_options, given_fields, on_command_line
 
 
 @main.command()
 @click.argument("study_file", required=False, type=click.Path(path_type=Path))
-@click.option("--setup", "setup_name", type=click.Choice(setup_names()), help="A built-in or registered setup.")
-@click.option(
-    "--modes",
-    default="MEM,MM,MME",
-    show_default=True,
-    shell_complete=comma_list_completer(MODES),
-    help="Comma-separated modes, or all.",
-)
-@click.option("--worlds", type=click.IntRange(1, MAX_WORLDS), default=50, show_default=True)
-@click.option(
-    "--seed",
-    "first_world",
-    type=click.IntRange(0, SEED_MAX),
-    default=0,
-    show_default=True,
-    help="First world seed; a run's seed is its world's.",
-)
-@click.option("--transitions", type=click.IntRange(min=1), default=None, help="[setup default]")
-@click.option(
-    "--gen-workers",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Generator processes [default: this machine's cores; bytes do not depend on it].",
-)
+@setup_option()
+@modes_option("--modes", "modes", default="MEM,MM,MME", show_default=True)
+@worlds_option(default=50)
+@first_seed_option("first_world", help="First world seed; a run's seed is its world's.")
+@transitions_option()
+@generator_workers_option("--gen-workers", "gen_workers")
 @LAKE_OPTION
 @click.option(
     "--out", default=None, help="Folder (or fsspec URL) for the run folders [default: runs, or runs/<study name>]."
@@ -121,6 +101,7 @@ def sweep(
     if setup_name is None:
         raise SmspaceError("give a study file or --setup (smtrain sweep --help)")
     get_setup(setup_name)
+    check_seed_range(first_world, worlds)
     mode_list = parse_modes(modes)
     template = config_from_flags(flags)
     say_precision(flags)
@@ -161,7 +142,7 @@ def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen
     from smspace.study.run import run_study
 
     given = [p.opts[0] for p in ctx.command.params if p.name in STUDY_FILE_KEYS and on_command_line(ctx, p.name)]
-    given += [flag_name(f) for f in flag_fields_of_config() if f.name in given_fields(ctx)]
+    given += [flag_name(f) for f in flag_fields() if f.name in given_fields(ctx)]
     if given:
         raise SmspaceError(f"{', '.join(given)}: set in the study file {study_file}, not on the command line")
     if dry_run:

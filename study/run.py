@@ -25,7 +25,7 @@ from smspace.datagen.generate import check_disk
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import draw_transitions, get_setup, setup_plugin
 from smspace.datagen.setups.contract import check_world
-from smspace.lake.manifest import GenConfig
+from smspace.lake.manifest import dataset_id
 from smspace.lake.store import Store, open_store
 from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study, read_study
 from smspace.study.sweep import SweepPlan, check_apart, check_terms, ensembles, prepare, run_ensembles
@@ -200,7 +200,7 @@ def dry_run(
     for setup in setups:
         spec, probe = get_setup(setup), probes[setup]
         n = spec.default_transitions if study.transitions is None else study.transitions
-        ids = [_dataset_id(setup, mode, seed) for seed in study.world_seeds for mode in study.modes]
+        ids = [dataset_id(setup, seed, mode) for seed in study.world_seeds for mode in study.modes]
         missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
         parts = len(missing) * -(-n // spec.default_shard_size)
         seconds = len(missing) * n / probe.gen_rate / max(1, min(gen_workers, parts))
@@ -218,7 +218,7 @@ def dry_run(
         spec, probe = get_setup(setup), probes[setup]
         template = combo.plan.template.for_setup(setup, combo.plan.n_transitions, spec.encoder_layers)
         states = [
-            _run_state(combo.out, template, _dataset_id(setup, mode, seed), seed)
+            _run_state(combo.out, template, dataset_id(setup, seed, mode), seed)
             for seed in study.world_seeds
             for mode in study.modes
         ]
@@ -265,10 +265,6 @@ def _refuse_what_run_folders_cannot_hold(out: Store, run_bytes: float) -> None:
             f"this study needs about {_size(run_bytes)} of run folders; "
             f"the disk of {out.url} has {_size(out_free)} free"
         )
-
-
-def _dataset_id(setup: str, mode: str, seed: int) -> str:
-    return GenConfig(setup, mode, seed, 1, 1).dataset_id
 
 
 def _run_state(out: Store, template: TrainConfig, dataset_id: str, seed: int) -> tuple[str, int]:

@@ -199,3 +199,46 @@ def test_ctrl_c_during_generation_says_how_to_complete_it(tmp_path):
         "interrupted; the parts already stored are kept: the same command completes the datasets"
     )
     assert not (lake / "grid-seed0-MM" / "manifest.json").exists()
+
+
+GENERATION_FLAGS = ("setup_name", "worlds", "transitions")  # and the seed and generator workers, spelled per command
+
+
+def test_generation_flags_are_declared_once_for_smgen_and_sweep():
+    from smspace.datagen.cli import generate
+    from smspace.study.cli import sweep
+
+    def described(command, dest: str) -> tuple:
+        (param,) = [p for p in command.params if p.name == dest]
+        return repr(param.type), param.help
+
+    pairs = [(d, d) for d in GENERATION_FLAGS] + [("seed", "first_world"), ("workers", "gen_workers")]
+    for mine, theirs in pairs:
+        assert described(generate, mine) == described(sweep, theirs) or mine in ("seed",), mine
+    assert repr(next(p for p in generate.params if p.name == "seed").type) == repr(
+        next(p for p in sweep.params if p.name == "first_world").type
+    )
+
+
+@pytest.mark.parametrize(
+    ("gen_args", "sweep_args", "needle"),
+    [
+        (["--worlds", "0"], ["--worlds", "0"], "--worlds"),
+        (["--seed", "-1"], ["--seed", "-1"], "--seed"),
+        (["--workers", "1025"], ["--gen-workers", "1025"], "workers"),
+        (["--seed", str(2**63 - 1), "--worlds", "2"], ["--seed", str(2**63 - 1), "--worlds", "2"], "largest world seed"),
+        (["--transitions", "0"], ["--transitions", "0"], "--transitions must be positive"),
+    ],
+)
+def test_a_generation_bound_holds_in_smgen_and_in_sweep(tmp_path, gen_args, sweep_args, needle):
+    from .conftest import smtrain
+
+    lake, out = tmp_path / "lake", tmp_path / "runs"
+    for result in (
+        smgen("generate", "--setup", "grid", "--mode", "MM", *gen_args, "--lake", lake),
+        smtrain("sweep", "--setup", "grid", "--modes", "MM", *sweep_args, "--lake", lake, "--out", out),
+    ):
+        assert result.exit_code == 2, result.output
+        assert needle in result.output, result.output
+    assert not lake.exists() or not any(lake.iterdir())
+    assert not out.exists() or not any(out.iterdir())

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
@@ -19,14 +18,12 @@ from smspace.common.cli import (
     friendly_errors,
 )
 from smspace.common.completion import complete_datasets
-from smspace.common.errors import Interrupted, SmspaceError
+from smspace.common.errors import SmspaceError
 from smspace.common.rerun_output import view_options
 from smspace.train.config import RUNS
 from smspace.train.options import (
     config_from_flags,
     config_options,
-    flag_fields_of_config,
-    flag_name,
     given_fields,
 )
 
@@ -60,54 +57,21 @@ def main() -> None:
 def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     """Train on DATASET (a folder or an id in the lake); prints the final metrics. Under torchrun,
     one run on all its processes (DDP); --batch-size is then the global batch."""
-    from smspace.train.distributed import (
-        INTERRUPTED,
-        PEER_LOST,
-        STORE_ENV,
-        PeerLost,
-        all_ok,
-        join_from_environment,
-        leave,
-    )
     from smspace.train.fit import fit as run_fit
     from smspace.train.fit import plan_fit
-    from smspace.train.launch import launch_local
-    from smspace.train.run_dir import RunDir
+    from smspace.train.launch import launch_if_asked, rank_of
 
-    ctx = click.get_current_context()
-    given = [flag_name(f) for f in flag_fields_of_config() if f.name in given_fields(ctx)]
+    given = given_fields(click.get_current_context())
     template = config_from_flags(flags)
     say_precision(flags)
-    if nproc > 1 and STORE_ENV not in os.environ:  # this process only launches the ranks
-        if "WORLD_SIZE" in os.environ:
-            raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
-        plan = plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, nproc)  # refused before any rank
-        with _resume_hint(plan.where, nproc):
-            sys.exit(launch_local(nproc, [sys.executable, "-m", "smspace.train.cli", *sys.argv[1:]], plan.where))
-    world = int(os.environ.get("WORLD_SIZE", "1") or 1)
-    plan = plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, world)  # the same on every rank
-    ranks = join_from_environment(plan.cfg.device)  # under torchrun: this rank of the process group
-    try:
-        run, problem = None, None
-        if ranks.primary:
-            if plan.change:
-                click.echo(plan.change, err=True)
-            run, problem = _attempt(plan.start)
-        if not all_ok(problem is None, ranks):  # no rank waits forever for a rank 0 that gave up
-            raise problem or SmspaceError("rank 0 could not prepare the run folder (see its error)")
-        speaks = ranks.primary and STORE_ENV not in os.environ  # under --nproc the launcher says it, once
-        with _resume_hint(plan.where, ranks.world) if speaks else contextlib.nullcontext():
-            result = run_fit(plan.cfg, run or RunDir(plan.where), resume=plan.resume, ranks=ranks)
-    except KeyboardInterrupt:
-        if STORE_ENV in os.environ:
-            sys.exit(INTERRUPTED)  # the run's status says it; the launcher prints the line
-        raise
-    except PeerLost:
-        if STORE_ENV in os.environ:  # under --nproc the launcher names the rank that died, in one line
-            sys.exit(PEER_LOST)
-        raise  # under torchrun this rank says it
-    finally:
-        leave(ranks)
+
+    def plan_for(world: int):
+        return plan_fit(template, dataset, lake, out, resume_dir, overwrite, given, world)
+
+    launch_if_asked(nproc, plan_for)
+    plan = plan_for(int(os.environ.get("WORLD_SIZE", "1") or 1))  # the same on every rank
+    with rank_of(plan, lambda line: click.echo(line, err=True)) as (ranks, run):
+        result = run_fit(plan.cfg, run, resume=plan.resume, ranks=ranks)
     if ranks.primary:
         click.echo(f"run: {display_name(str(run.path))}")
         click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
@@ -120,26 +84,6 @@ def say_precision(flags: dict) -> None:
 
         precision, why = resolve("auto", flags.get("device") or "cpu")
         click.echo(f"--precision auto: {precision} ({why})", err=True)
-
-
-@contextlib.contextmanager
-def _resume_hint(where: str, world: int):
-    """Ctrl-C or SIGTERM: say which step the kept checkpoint holds and the command that resumes."""
-    try:
-        yield
-    except KeyboardInterrupt:
-        from smspace.train.run_dir import after_a_stop
-
-        raise Interrupted(f"interrupted; {after_a_stop(where, world)}") from None
-
-
-def _attempt(action):
-    """(what the action returned, None), or (None, its error): the error is raised only once every
-    rank knows about it."""
-    try:
-        return action(), None
-    except SmspaceError as e:
-        return None, e
 
 
 @main.command()

@@ -23,7 +23,7 @@ from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
 from smspace.lake.store import within
 from smspace.train import engine
-from smspace.train.config import RUNS, TrainConfig, check_resources
+from smspace.train.config import RUNS, TrainConfig, check_resources, flag_fields, flag_name
 from smspace.train.contract import check_model
 from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch
 from smspace.train.engine import EvalData, Evaluation, Member, resolve_device
@@ -61,17 +61,17 @@ def plan_fit(
     out: str | None,
     resume: str | None,
     overwrite: bool,
-    given: list[str],
+    given: frozenset[str],
     world: int,
 ) -> FitPlan:
     """Every check of `smtrain fit` before anything is written: the same on every rank, and in the
-    launcher of --nproc before any rank starts. `given`: the flags on the command line."""
+    launcher of --nproc before any rank starts. `given`: the config fields the caller set."""
     if resume is not None:
-        extra = [name for name in given if name != "--steps"]
+        extra = [flag_name(f) for f in flag_fields() if f.name in given and f.name != "steps"]
         if dataset or extra or overwrite:
             raise SmspaceError(f"--resume continues a run with its own config; drop {' '.join(extra) or 'DATASET'}")
         run = RunDir.open(resume)
-        steps = template.steps if "--steps" in given else None
+        steps = template.steps if "steps" in given else None
         cfg, change = resumed(run.config, str(run.path), steps, world)
         ds = run_dataset(cfg, str(run.path)).verify()
         manifest = ds.manifest

@@ -1,4 +1,5 @@
-"""`smtrain fit --nproc N`: one run as N DDP ranks on this machine, without torchrun.
+"""How `smtrain fit` runs on one process or many: the ranks started (`--nproc N`, without
+torchrun) or joined (under torchrun), the run folder prepared by rank 0 alone, and a stop said once.
 
 torchrun --standalone does the same, but its rendezvous store listens on every interface; this
 launcher hosts the store itself on a socket bound to 127.0.0.1 (PyTorch's TCPStore accepts a
@@ -9,6 +10,7 @@ init_process_group and train under DistributedDataParallel (train/distributed.py
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -16,15 +18,88 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator
 from datetime import timedelta
 from functools import partial
 
 import torch.distributed as dist
 
 from smspace.common.cli import die_with_parent
-from smspace.train.distributed import INTERRUPTED, PEER_LOST, STORE_ENV
+from smspace.common.errors import Interrupted, SmspaceError
+from smspace.train.distributed import (
+    INTERRUPTED,
+    PEER_LOST,
+    STORE_ENV,
+    PeerLost,
+    Ranks,
+    all_ok,
+    join_from_environment,
+    leave,
+)
+from smspace.train.fit import FitPlan
+from smspace.train.run_dir import RunDir, after_a_stop
 
 GRACE_S = 5.0  # a rank that failed waits this long for rank 0 to fail the same way and say why
+
+
+def launch_if_asked(nproc: int, plan_for: Callable[[int], FitPlan]) -> None:
+    """With --nproc N outside a launched rank: check the run for N ranks, start them, exit with
+    their outcome (this process only launches). Otherwise return and let this process train."""
+    if nproc <= 1 or STORE_ENV in os.environ:
+        return
+    if "WORLD_SIZE" in os.environ:
+        raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
+    plan = plan_for(nproc)  # refused before any rank starts
+    with resume_hint(plan.where, nproc):
+        sys.exit(launch_local(nproc, [sys.executable, "-m", "smspace.train.cli", *sys.argv[1:]], plan.where))
+
+
+@contextlib.contextmanager
+def rank_of(plan: FitPlan, say: Callable[[str], None]) -> Iterator[tuple[Ranks, RunDir]]:
+    """This process's rank of the run (the only one, or one of torchrun's or the launcher's), with
+    the run folder rank 0 prepared; a rank that failed never leaves the others waiting, and a stop
+    is said once: by rank 0, or by the launcher of --nproc."""
+    ranks = join_from_environment(plan.cfg.device)
+    launched = STORE_ENV in os.environ
+    try:
+        run, problem = None, None
+        if ranks.primary:
+            if plan.change:
+                say(plan.change)
+            run, problem = _attempt(plan.start)
+        if not all_ok(problem is None, ranks):  # no rank waits forever for a rank 0 that gave up
+            raise problem or SmspaceError("rank 0 could not prepare the run folder (see its error)")
+        speaks = ranks.primary and not launched
+        with resume_hint(plan.where, ranks.world) if speaks else contextlib.nullcontext():
+            yield ranks, run or RunDir(plan.where)
+    except KeyboardInterrupt:
+        if launched:
+            sys.exit(INTERRUPTED)  # the run's status says it; the launcher prints the line
+        raise
+    except PeerLost:
+        if launched:  # the launcher names the rank that died, in one line
+            sys.exit(PEER_LOST)
+        raise  # under torchrun this rank says it
+    finally:
+        leave(ranks)
+
+
+@contextlib.contextmanager
+def resume_hint(where: str, world: int) -> Iterator[None]:
+    """Ctrl-C or SIGTERM: say which step the kept checkpoint holds and the command that resumes."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        raise Interrupted(f"interrupted; {after_a_stop(where, world)}") from None
+
+
+def _attempt(action: Callable[[], RunDir]) -> tuple[RunDir | None, SmspaceError | None]:
+    """(what the action returned, None), or (None, its error): the error is raised only once every
+    rank knows about it."""
+    try:
+        return action(), None
+    except SmspaceError as e:
+        return None, e
 
 
 def _store_on_loopback(nproc: int) -> tuple[dist.TCPStore, int]:
@@ -87,8 +162,6 @@ def launch_local(nproc: int, argv: list[str], where: str) -> int:
             for other, how in exits:
                 if other != 0 and how < 0 and how != -signal.SIGTERM:
                     print(f"smtrain: note: rank {other} ended with {_how(how)} as the run stopped", file=sys.stderr)
-        from smspace.train.run_dir import after_a_stop
-
         if code == INTERRUPTED:  # a rank stopped by Ctrl-C or SIGTERM sent to it, not to this launcher
             line = f"interrupted (rank {rank}); {after_a_stop(where, nproc)}"
             print(line, file=sys.stderr)
@@ -149,7 +222,6 @@ def _record_outcome(where: str, line: str, state: str = "failed") -> None:
     """The run's status, which a rank killed outright never wrote, or which a rank that lost its
     interrupted peer wrote as its own failure (best effort, within seconds)."""
     from smspace.common.bounded import run_within
-    from smspace.train.run_dir import RunDir
 
     def mark() -> None:
         run = RunDir.open(where)

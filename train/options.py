@@ -131,16 +131,12 @@ def config_from_flags(flags: dict) -> TrainConfig:
     return TrainConfig(dataset="", **given)
 
 
-def flag_fields_of_config():
-    from smspace.train.config import flag_fields
-
-    return flag_fields()
-
-
 def on_command_line(ctx: click.Context, name: str) -> bool:
     return ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
 
 
 def given_fields(ctx: click.Context) -> frozenset[str]:
     """The config fields whose flags were typed on the command line (not defaults)."""
-    return frozenset(f.name for f in flag_fields_of_config() if on_command_line(ctx, f.name))
+    from smspace.train.config import flag_fields
+
+    return frozenset(f.name for f in flag_fields() if on_command_line(ctx, f.name))

@@ -1,0 +1,58 @@
+"""The generation flags, declared once: `smgen generate` and `smtrain sweep` (which generates the
+datasets it trains on) take them from here, so their types, bounds and help cannot drift apart.
+A command chooses only the spelling its users know (`--mode` / `--modes`), the default and
+whether the flag is required."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import click
+
+from smspace.common.cli import MAX_WORKERS
+from smspace.common.completion import comma_list_completer
+from smspace.datagen.setups import SETUPS, setup_names
+from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.lake.transitions import MODES
+
+SETUP_HELP = "; ".join(f"{s.name}: {s.description}" for s in SETUPS.values()) + "; or a setup a plugin registers"
+
+
+def setup_option(required: bool = False, help: str = SETUP_HELP) -> Callable:
+    return click.option("--setup", "setup_name", type=click.Choice(setup_names()), required=required, help=help)
+
+
+def modes_option(flag: str, dest: str, **given) -> Callable:
+    help_text = "MEM, MM, MME, several separated by commas, or all."
+    return click.option(flag, dest, shell_complete=comma_list_completer(MODES), help=help_text, **given)
+
+
+def transitions_option() -> Callable:
+    """Bounds are the library's own (datagen.generate refuses 0 the same way for the API)."""
+    return click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default].")
+
+
+def worlds_option(default: int) -> Callable:
+    return click.option(
+        "--worlds", type=click.IntRange(1, MAX_WORLDS), default=default, show_default=True,
+        help="Number of worlds; their seeds are SEED, SEED+1, …",
+    )  # fmt: skip
+
+
+def first_seed_option(dest: str, help: str = "Seed of the first world.") -> Callable:
+    return click.option("--seed", dest, type=click.IntRange(0, SEED_MAX), default=0, show_default=True, help=help)
+
+
+def generator_workers_option(flag: str, dest: str) -> Callable:
+    return click.option(
+        flag, dest, type=click.IntRange(1, MAX_WORKERS), default=None,
+        help="Generator processes [default: this machine's cores; bytes do not depend on it].",
+    )  # fmt: skip
+
+
+def check_seed_range(seed: int, worlds: int) -> None:
+    """The last world's seed must still be a seed (both commands, before anything is written)."""
+    from smspace.common.errors import SmspaceError
+
+    if seed + worlds - 1 > SEED_MAX:
+        raise SmspaceError(f"--seed {seed} with --worlds {worlds} passes the largest world seed, {SEED_MAX}")
