@@ -20,10 +20,9 @@ from pathlib import Path
 
 import click
 
+from smspace.common.atomic import commit, partial_path
 from smspace.common.cli import check_output, die_with_parent
 from smspace.common.errors import SmspaceError
-
-PARTIAL_SUFFIX = ".partial"  # the suffix of every temporary file smspace writes
 
 
 @dataclass(frozen=True)
@@ -80,7 +79,7 @@ def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput, sou
             raise SmspaceError(f"cannot write {save}: {e.strerror or e}") from e
     rec = rr.RecordingStream(app_id, recording_id=recording_id)
     if save is not None:
-        partial = save.with_name(f"{save.name}.{os.getpid()}{PARTIAL_SUFFIX}")
+        partial = partial_path(save)
         rec.save(partial, default_blueprint=blueprint)
     elif web:
         tmp = tempfile.NamedTemporaryFile(prefix="smspace-", suffix=".rrd", delete=False)  # noqa: SIM115
@@ -101,22 +100,12 @@ def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput, sou
     rec.flush()
     rec.disconnect()
     if partial is not None:
-        _commit(partial, save)
+        commit(partial, save)
     if tmp is not None:
         try:
             serve_web(Path(tmp.name), output.web_port, output.grpc_port)
         finally:
             Path(tmp.name).unlink(missing_ok=True)
-
-
-def _commit(partial: Path, final: Path) -> None:
-    try:
-        with open(partial, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(partial, final)
-    except OSError as e:
-        partial.unlink(missing_ok=True)
-        raise SmspaceError(f"cannot write {final}: {e.strerror or e}") from e
 
 
 def serve_web(rrd: Path, web_port: int = 9090, grpc_port: int = 9876) -> None:

@@ -22,9 +22,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from smspace.common.atomic import create_exclusive, remove_partials, sha256_file, write_atomic
 from smspace.common.errors import DatasetCorrupt, SmspaceError, one_line
 from smspace.common.locks import HeldLock, hold_lock
-from smspace.lake.atomic import create_exclusive, remove_partials, sha256_file, write_atomic
 
 LOCAL_SCHEMES = ("", "file")
 READ_BLOCK = 1 << 16  # the summary of a shard comes down in one or two requests of this size

@@ -146,7 +146,7 @@ def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):
     import builtins
     import io
 
-    import smspace.lake.atomic as atomic
+    import smspace.common.atomic as atomic
 
     class FillsUp(io.FileIO):
         def write(self, data):  # half the shard reaches the disk, then the disk is full
@@ -201,23 +201,23 @@ def test_ctrl_c_during_generation_says_how_to_complete_it(tmp_path):
     assert not (lake / "grid-seed0-MM" / "manifest.json").exists()
 
 
-GENERATION_FLAGS = ("setup_name", "worlds", "transitions")  # and the seed and generator workers, spelled per command
-
-
 def test_generation_flags_are_declared_once_for_smgen_and_sweep():
     from smspace.datagen.cli import generate
     from smspace.study.cli import sweep
 
-    def described(command, dest: str) -> tuple:
-        (param,) = [p for p in command.params if p.name == dest]
-        return repr(param.type), param.help
+    def param(command, dest: str):
+        (found,) = [p for p in command.params if p.name == dest]
+        return found
 
-    pairs = [(d, d) for d in GENERATION_FLAGS] + [("seed", "first_world"), ("workers", "gen_workers")]
-    for mine, theirs in pairs:
-        assert described(generate, mine) == described(sweep, theirs) or mine in ("seed",), mine
-    assert repr(next(p for p in generate.params if p.name == "seed").type) == repr(
-        next(p for p in sweep.params if p.name == "first_world").type
-    )
+    shared = {"setup_name": "setup_name", "worlds": "worlds", "transitions": "transitions", "seed": "first_world",
+              "workers": "gen_workers"}  # fmt: skip
+    for mine, theirs in shared.items():
+        assert repr(param(generate, mine).type) == repr(param(sweep, theirs).type), mine
+        if mine != "seed":  # sweep says what its first seed also is: the runs' seed
+            assert param(generate, mine).help == param(sweep, theirs).help, mine
+
+
+TOP_SEED = str(2**63 - 1)
 
 
 @pytest.mark.parametrize(
@@ -226,7 +226,7 @@ def test_generation_flags_are_declared_once_for_smgen_and_sweep():
         (["--worlds", "0"], ["--worlds", "0"], "--worlds"),
         (["--seed", "-1"], ["--seed", "-1"], "--seed"),
         (["--workers", "1025"], ["--gen-workers", "1025"], "workers"),
-        (["--seed", str(2**63 - 1), "--worlds", "2"], ["--seed", str(2**63 - 1), "--worlds", "2"], "largest world seed"),
+        (["--seed", TOP_SEED, "--worlds", "2"], ["--seed", TOP_SEED, "--worlds", "2"], "largest world seed"),
         (["--transitions", "0"], ["--transitions", "0"], "--transitions must be positive"),
     ],
 )

@@ -11,7 +11,24 @@ from typing import BinaryIO
 
 from smspace.common.errors import SmspaceError
 
-PARTIAL_SUFFIX = ".partial"
+PARTIAL_SUFFIX = ".partial"  # of every file smspace writes before it has its final name
+
+
+def partial_path(path: Path) -> Path:
+    """Where `path` is written until it is complete: beside it, named by this process."""
+    return path.with_name(f"{path.name}.{os.getpid()}{PARTIAL_SUFFIX}")
+
+
+def commit(partial: Path, path: Path) -> None:
+    """Give a complete partial file its final name, durably; on failure nothing is left."""
+    try:
+        with open(partial, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(partial, path)
+        fsync_dir(path.parent)
+    except OSError as e:
+        partial.unlink(missing_ok=True)
+        raise SmspaceError(f"cannot write {path}: {e.strerror or e}") from e
 
 
 def fsync_dir(path: Path) -> None:
@@ -25,7 +42,7 @@ def fsync_dir(path: Path) -> None:
 @contextlib.contextmanager
 def atomic_writer(path: Path) -> Iterator[BinaryIO]:
     """Yield a file that becomes `path` only if the block completes; on error nothing is left."""
-    tmp = path.with_name(f"{path.name}.{os.getpid()}{PARTIAL_SUFFIX}")
+    tmp = partial_path(path)
     try:
         with open(tmp, "wb") as fh:
             yield fh
@@ -50,7 +67,7 @@ def create_exclusive(path: Path, data: bytes) -> None:
     """Write `path` only if it does not exist (FileExistsError otherwise), complete or not at all:
     the data goes to a temporary file, then a hard link claims the final name, which fails if it
     is taken; two writers racing for the name cannot both succeed."""
-    tmp = path.with_name(f"{path.name}.{os.getpid()}{PARTIAL_SUFFIX}")
+    tmp = partial_path(path)
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)
