@@ -18,9 +18,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from smspace.common.atomic import atomic_writer
 from smspace.common.cli import check_output
 from smspace.common.errors import SmspaceError
-from smspace.lake.atomic import atomic_writer
+from smspace.lake import parquet
 from smspace.lake.dataset import Dataset
 from smspace.lake.transitions import COLUMNS, Transitions
 
@@ -131,8 +132,7 @@ def _fixed(x: np.ndarray) -> pa.Array:
     x = np.ascontiguousarray(x)
     if x.dtype == np.uint8:  # images: one fixed-size binary per frame (3× smaller and faster than lists)
         return pa.FixedSizeBinaryArray.from_buffers(pa.binary(x[0].size), len(x), [None, pa.py_buffer(x.tobytes())])
-    flat = x.reshape(len(x), -1).astype(np.float32)
-    return pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1)), flat.shape[1])
+    return parquet.fixed_list(x)
 
 
 def transitions_table(first: int, tr: Transitions) -> pa.Table:
@@ -164,7 +164,7 @@ def _parquet(ds: Dataset, out: Path, limit: int | None) -> int:
 
 def read_parquet_transitions(path: Path) -> tuple[np.ndarray, Transitions, dict]:
     """Read an exported Parquet file back into numpy (the inverse of the export)."""
-    table = pq.read_table(path)
+    table = parquet.read_table(Path(path))
     manifest = json.loads(table.schema.metadata[b"smspace.manifest"])
     shape = tuple(manifest["sensor_shape"])
 
@@ -172,9 +172,7 @@ def read_parquet_transitions(path: Path) -> tuple[np.ndarray, Transitions, dict]
         arr = table[name].combine_chunks()
         if pa.types.is_fixed_size_binary(arr.type):
             return np.frombuffer(arr.buffers()[1], np.uint8)[: len(arr) * arr.type.byte_width].reshape(len(arr), *shape)
-        values = arr.values.to_numpy()
-        width = arr.type.list_size
-        out = values.reshape(len(arr), width)
+        out = parquet.from_fixed_list(arr)
         return out.reshape(len(arr), *shape) if name in ("s_t", "s_t1") else out
 
     tr = Transitions(**{name: col(name) for name in COLUMNS})

@@ -8,12 +8,10 @@ next reader notices and repairs it (docs/FORMAT.md, "Commit protocol")."""
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from smspace.common.cli import display_name
 from smspace.common.errors import SmspaceError
@@ -126,10 +124,8 @@ def rebuild_catalog(lake: Path | str | Store) -> pa.Table:
     manifests, broken, gone = _scan(lake, sorted(versions))
     table = _rows(manifests)
     sources = {"versions": {k: v for k, v in versions.items() if k not in gone}, "broken": sorted(broken)}
-    buf = io.BytesIO()
     metadata = {SOURCES_KEY: json.dumps(sources, sort_keys=True).encode()}
-    pq.write_table(table.replace_schema_metadata(metadata), buf, compression="zstd")
-    lake.put(CATALOG, buf.getvalue())
+    lake.put(CATALOG, parquet.table_bytes(table.replace_schema_metadata(metadata)))
     return table.replace_schema_metadata(None)
 
 

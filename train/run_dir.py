@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 import torch
 
 from smspace.common import provenance
@@ -52,12 +51,6 @@ METRICS_SCHEMA = pa.schema(
         ("elapsed_s", pa.float64()),  # wall-clock training time so far (the only non-reproducible column)
     ]
 )
-
-
-def _parquet_bytes(table: pa.Table) -> bytes:
-    buf = io.BytesIO()
-    pq.write_table(table, buf, compression="zstd")
-    return buf.getvalue()
 
 
 def embedding_file(step: int) -> str:
@@ -288,7 +281,7 @@ class RunDir:
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
         table = pa.Table.from_pylist(rows, schema=METRICS_SCHEMA).replace_schema_metadata({RUN_ID: self.run_id})
-        self._write(METRICS, _parquet_bytes(table))
+        self._write(METRICS, parquet.table_bytes(table))
 
     def write_embeddings(self, step: int, h: np.ndarray, p: np.ndarray, extra: dict[str, np.ndarray]) -> None:
         """h of the regular sampling with its p (so anyone can recompute the metrics), plus extras."""
@@ -296,11 +289,11 @@ class RunDir:
         folder.make()
         columns = {
             "index": pa.array(np.arange(len(h), dtype=np.int32)),
-            "h": _fixed_list(h),
-            "p": _fixed_list(p),
+            "h": parquet.fixed_list(h),
+            "p": parquet.fixed_list(p),
         }
         table = pa.table(columns, metadata={"step": str(step), RUN_ID: self.run_id})
-        self._write(embedding_file(step), _parquet_bytes(table), sub=EMBEDDINGS)
+        self._write(embedding_file(step), parquet.table_bytes(table), sub=EMBEDDINGS)
         for name, value in extra.items():
             self._write(array_file(name, step), _npy_bytes(value), sub=EMBEDDINGS)
 
@@ -335,7 +328,7 @@ class RunDir:
 
     def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
         table = parquet.read_table(self._read(embedding_file(step), self._embeddings()))
-        return _from_fixed_list(table["h"]), _from_fixed_list(table["p"])
+        return parquet.from_fixed_list(table["h"]), parquet.from_fixed_list(table["p"])
 
     def predictions(self, step: int) -> np.ndarray:
         """The normalised s_t1 the network predicted at `step` for the first evaluation transitions."""
@@ -443,16 +436,6 @@ def _alive(pid: Any) -> bool:
     except PermissionError:  # someone else's process: alive
         return True
     return True
-
-
-def _fixed_list(x: np.ndarray) -> pa.FixedSizeListArray:
-    x = np.ascontiguousarray(x, np.float32)
-    return pa.FixedSizeListArray.from_arrays(pa.array(x.reshape(-1)), x.shape[1])
-
-
-def _from_fixed_list(col: pa.ChunkedArray) -> np.ndarray:
-    arr = col.combine_chunks()
-    return arr.values.to_numpy().reshape(len(arr), arr.type.list_size)
 
 
 def _npy_bytes(x: np.ndarray) -> bytes:
