@@ -10,8 +10,8 @@ import contextlib
 import hashlib
 import importlib.util
 import sys
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from functools import cache
 from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
@@ -70,6 +70,53 @@ def others(group: str, kind: str, builtin: tuple[str, ...]) -> dict[str, EntryPo
             flush=True,
         )
     return {name: ep for name, ep in found.items() if name not in builtin}
+
+
+@dataclass
+class Registry:
+    """The things of one kind a run may name (setups, models): smspace's own first, then those
+    other packages register under `group`, each loaded once, when first named. `builtin` gives one
+    of smspace's own by name (imported only then: the command line never imports torch for its
+    choices); `pick` finds the named thing in what an entry point loaded (None: not there)."""
+
+    kind: str
+    group: str
+    builtin_names: tuple[str, ...]
+    builtin: Callable[[str], Any]
+    pick: Callable[[Any, str], Any] = lambda found, name: found
+    _loaded: dict[str, tuple[Any, Plugin | None]] = field(default_factory=dict, repr=False)
+
+    def names(self) -> tuple[str, ...]:
+        return (*self.builtin_names, *sorted(others(self.group, self.kind, self.builtin_names)))
+
+    def get(self, name: str) -> Any:
+        return self._load(name)[0]
+
+    def plugin(self, name: str) -> Plugin | None:
+        """The package it comes from (None: smspace's own)."""
+        return self._load(name)[1]
+
+    def label(self, name: str) -> str:
+        return label(self.kind, name, self.plugin(name))
+
+    def _load(self, name: str) -> tuple[Any, Plugin | None]:
+        if name not in self._loaded:
+            self._loaded[name] = self._find(name)
+        return self._loaded[name]
+
+    def _find(self, name: str) -> tuple[Any, Plugin | None]:
+        if name in self.builtin_names:
+            return self.builtin(name), None
+        ep = others(self.group, self.kind, self.builtin_names).get(name)
+        if ep is None:
+            raise SmspaceError(f"unknown {self.kind} {name!r} (choose from {', '.join(self.names())})")
+        found, plugin = load(self.kind, ep)
+        picked = self.pick(found, name)
+        if picked is None:
+            raise SmspaceError(
+                f"the entry point {ep.value} of {self.kind} {name!r} declares no {self.kind} named {name!r}"
+            )
+        return picked, plugin
 
 
 def describe(kind: str, ep: EntryPoint) -> Plugin:

@@ -27,6 +27,14 @@ PRECISIONS = ("fp32", "bf16", "auto")
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
 MAX_LAYERS = 32
+LAYER_BOUNDS = f"at most {MAX_LAYERS} layers of 1..{MAX_WIDTH} units"
+
+
+def layers_within_bounds(sizes: Sequence[int]) -> bool:
+    """The one rule for layer lists, whether they come from a flag, a study file or Python."""
+    return len(sizes) <= MAX_LAYERS and all(1 <= s <= MAX_WIDTH for s in sizes)
+
+
 UNIT_BYTES = 256  # the loader's record of one batch unit (a small Python object and its list slot)
 
 
@@ -103,8 +111,8 @@ class TrainConfig:
                 raise SmspaceError(f"--{name.replace('_', '-')} must be a finite positive number, got {value}")
         for name in ("encoder_layers", "predictor_layers"):
             sizes = getattr(self, name)
-            if len(sizes) > MAX_LAYERS or any(not 1 <= s <= MAX_WIDTH for s in sizes):
-                raise SmspaceError(f"--{name.replace('_', '-')}: at most {MAX_LAYERS} layers of 1..{MAX_WIDTH}")
+            if not layers_within_bounds(sizes):
+                raise SmspaceError(f"--{name.replace('_', '-')}: {LAYER_BOUNDS}")
         if self.lr_decay_steps <= 0:
             self.lr_decay_steps = max(1, round(0.8 * self.steps))
         if self.precision not in PRECISIONS:
@@ -167,9 +175,18 @@ def default_encoder_layers(manifest) -> tuple[int, ...]:
     return PAPER_ENCODERS.get(manifest.n_motor, PAPER_ENCODERS[3])
 
 
+def _builtin_model(name: str) -> Any:
+    from smspace.train.model import SensorimotorNet  # torch, only once a run needs its network
+
+    return SensorimotorNet
+
+
+MODELS = plugins.Registry("model", ENTRY_POINTS, (DEFAULT_MODEL,), _builtin_model)
+
+
 def model_names() -> tuple[str, ...]:
     """Every model a run may name: the built-in one and the registered ones (not loaded)."""
-    return (DEFAULT_MODEL, *sorted(plugins.others(ENTRY_POINTS, "model", (DEFAULT_MODEL,))))
+    return MODELS.names()
 
 
 def flag_name(f) -> str:

@@ -13,7 +13,6 @@ import inspect
 import itertools
 import math
 from collections.abc import Sequence
-from functools import cache
 from typing import Any
 
 import torch
@@ -22,7 +21,7 @@ from torch import nn
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError
 from smspace.common.plugins import Plugin
-from smspace.train.config import DEFAULT_MODEL, ENTRY_POINTS, model_names
+from smspace.train.config import MODELS
 
 
 class Dense(nn.Module):
@@ -85,27 +84,13 @@ def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pred - target).pow(2).sum(dim=-1).mean(dim=-1)
 
 
-@cache
-def _loaded(name: str) -> tuple[type[nn.Module], Plugin | None]:
-    if name == DEFAULT_MODEL:
-        return SensorimotorNet, None
-    ep = plugins.others(ENTRY_POINTS, "model", (DEFAULT_MODEL,)).get(name)
-    if ep is None:
-        raise SmspaceError(f"unknown model {name!r} (choose from {', '.join(model_names())})")
-    return plugins.load("model", ep)
-
-
-def model_class(name: str) -> type[nn.Module]:
-    return _loaded(name)[0]
-
-
 def model_plugin(name: str) -> Plugin | None:
     """The package a model comes from (None: smspace's own)."""
-    return _loaded(name)[1]
+    return MODELS.plugin(name)
 
 
 def model_label(name: str) -> str:
-    return plugins.label("model", name, model_plugin(name))
+    return MODELS.label(name)
 
 
 def plugin_record(name: str) -> dict[str, str]:
@@ -126,7 +111,7 @@ def build_model(
 ) -> nn.Module:
     """A model by name, with its own parameters. Parameters its constructor does not take are one
     line; whatever its constructor raises is one line naming it, as raised."""
-    cls, plugin = _loaded(name)
+    cls, plugin = MODELS.get(name), MODELS.plugin(name)
     args = (n_motor, n_sensor, n_h, list(encoder_layers), list(predictor_layers))
     try:
         inspect.signature(cls).bind(*args, **(params or {}))

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import click
 
 from smspace.common.completion import complete_devices
-from smspace.train.config import MAX_LAYERS, MAX_WIDTH, PRECISIONS, flag_name
+from smspace.train.config import LAYER_BOUNDS, PRECISIONS, flag_name, layers_within_bounds
 
 if TYPE_CHECKING:
     from smspace.train.config import TrainConfig
@@ -26,10 +26,8 @@ def int_list(ctx, param, value: str | None) -> list[int] | None:
         sizes = [int(v) for v in value.split(",")]  # "150,,50" is a typo, not two layers
     except ValueError:
         raise click.BadParameter(f"expected comma-separated layer sizes such as 150,100,50, got {value!r}") from None
-    if not sizes or min(sizes) <= 0:
-        raise click.BadParameter(f"expected positive layer sizes, got {value!r}")
-    if len(sizes) > MAX_LAYERS or max(sizes) > MAX_WIDTH:
-        raise click.BadParameter(f"at most {MAX_LAYERS} layers of at most {MAX_WIDTH} units, got {value!r}")
+    if not sizes or not layers_within_bounds(sizes):
+        raise click.BadParameter(f"expected {LAYER_BOUNDS}, got {value!r}")
     return sizes
 
 

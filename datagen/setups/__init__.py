@@ -5,10 +5,7 @@ command needs one: their names come from the package metadata."""
 
 from __future__ import annotations
 
-from functools import cache
-
 from smspace.common import plugins
-from smspace.common.errors import SmspaceError
 from smspace.common.plugins import Plugin
 from smspace.datagen.setups import arm, grid
 from smspace.datagen.setups.base import Setup, World, draw_transitions
@@ -18,40 +15,33 @@ ENTRY_POINTS = "smspace.setups"
 SETUPS: dict[str, Setup] = {s.name: s for s in (*grid.SETUPS, *arm.SETUPS)}  # the built-in ones
 
 
-def _plugins() -> dict[str, object]:
-    return plugins.others(ENTRY_POINTS, "setup", tuple(SETUPS))
+def _named(found: object, name: str) -> Setup | None:
+    """The Setup called `name` among what an entry point declares (one Setup, or a list)."""
+    for setup in found if isinstance(found, list | tuple) else [found]:
+        if isinstance(setup, Setup) and setup.name == name:
+            return setup
+    return None
+
+
+REGISTRY = plugins.Registry("setup", ENTRY_POINTS, tuple(SETUPS), SETUPS.__getitem__, _named)
 
 
 def setup_names() -> tuple[str, ...]:
     """Every setup a command may name (the choices of --setup, for completion too)."""
-    return (*SETUPS, *sorted(_plugins()))
-
-
-@cache
-def _loaded(name: str) -> tuple[Setup, Plugin | None]:
-    if name in SETUPS:
-        return SETUPS[name], None
-    ep = _plugins().get(name)
-    if ep is None:
-        raise SmspaceError(f"unknown setup {name!r} (choose from {', '.join(setup_names())})")
-    found, plugin = plugins.load("setup", ep)
-    for setup in found if isinstance(found, list | tuple) else [found]:
-        if isinstance(setup, Setup) and setup.name == name:
-            return setup, plugin
-    raise SmspaceError(f"the entry point {ep.value} of setup {name!r} declares no Setup named {name!r}")
+    return REGISTRY.names()
 
 
 def get_setup(name: str) -> Setup:
-    return _loaded(name)[0]
+    return REGISTRY.get(name)
 
 
 def setup_plugin(name: str) -> Plugin | None:
     """The package a setup comes from (None: smspace's own)."""
-    return _loaded(name)[1]
+    return REGISTRY.plugin(name)
 
 
 def setup_label(name: str) -> str:
-    return plugins.label("setup", name, setup_plugin(name))
+    return REGISTRY.label(name)
 
 
 __all__ = [
