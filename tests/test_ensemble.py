@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from smspace.common.errors import SmspaceError
 from smspace.train.config import TrainConfig
 from smspace.train.fit import fit, train_ensemble
 from smspace.train.run_dir import RunDir
@@ -483,3 +484,16 @@ def _sweep_with_checkpoints(tmp_path, steps: int):
 def _trains(process, out) -> bool:
     """A pool worker holds its runs' locks; the progress queue's manager process holds none."""
     return "spawn_main" in " ".join(process.cmdline()) and any(str(out) in f.path for f in process.open_files())
+
+
+@pytest.mark.parametrize("field", ["eval_transitions", "shuffle_window", "batch_size", "compile"])
+def test_runs_of_one_ensemble_share_every_study_term_new_fields_included(tmp_path, field):
+    """What an ensemble checks is what a study shares (train/terms.py), not a list of its own:
+    eval_transitions and shuffle_window are terms no flag sets, and are refused all the same."""
+    first = config("MM", 1)
+    value = getattr(first, field)
+    other = replace(config("MM", 2), **{field: (not value) if isinstance(value, bool) else value * 2})
+    runs = [RunDir.create(tmp_path / f"r{i}", cfg, False) for i, cfg in enumerate((first, other))]
+    with pytest.raises(SmspaceError, match=f"runs of one ensemble must share {field}"):
+        train_ensemble(runs, progress=False)
+    assert all(run.checkpoint_step() == 0 for run in runs)

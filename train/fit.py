@@ -29,7 +29,7 @@ from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch
 from smspace.train.engine import EvalData, Evaluation, Member, resolve_device
 from smspace.train.loader import TransitionStream
 from smspace.train.run_dir import CHECKPOINT, RunDir
-from smspace.train.terms import resumed
+from smspace.train.terms import check_one_ensemble, resumed
 
 # --- plan -----------------------------------------------------------------------------------------
 
@@ -281,33 +281,6 @@ def fit(
 
 # --- runs trained together (a sweep's ensemble) ---------------------------------------------------
 
-# What runs of one ensemble must share: the model and the schedule the loop applies to all.
-SHARED = (
-    "steps",
-    "batch_size",
-    "n_h",
-    "encoder_layers",
-    "predictor_layers",
-    "model",
-    "model_params",
-    "lr_start",
-    "lr_end",
-    "lr_decay_steps",
-    "eval_every",
-    "device",
-    "precision",
-    "compile",
-)
-
-
-def _check_compatible(cfgs: list[TrainConfig]) -> None:
-    first = cfgs[0].to_dict()
-    for cfg in cfgs[1:]:
-        other = cfg.to_dict()
-        diff = [k for k in SHARED if other[k] != first[k]]
-        if diff:
-            raise SmspaceError(f"runs of one ensemble must share {', '.join(diff)}")
-
 
 def train_ensemble(
     runs: list[RunDir],
@@ -324,7 +297,7 @@ def train_ensemble(
         opened = [open_member(run, run.config, device) for run in runs]
         members, manifests = [m for m, _ in opened], [ds.manifest for _, ds in opened]
         cfgs, shape = [m.cfg for m in members], _shape(manifests[0])
-        _check_compatible(cfgs)
+        check_one_ensemble(cfgs)
         if any(_shape(mf) != shape for mf in manifests):
             raise SmspaceError("runs of one ensemble must have datasets of the same setup")
         check_resources(cfgs[0], manifests[0], runs=len(runs))

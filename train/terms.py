@@ -13,7 +13,8 @@ and extending"); `smtrain fit --resume`, `smtrain sweep` and `smtrain report` ap
    have the same terms but `steps`, which may grow for every run of the study, new worlds and
    modes included; the study's recorded schedule then holds for all of them.
 5. Runs are averaged together only when they share every term but those that vary within a study
-   (`PER_RUN`: dataset, mode, seed) and how they were run (`EXECUTION`).
+   (`PER_RUN`: dataset, mode, seed) and how they were run (`EXECUTION`); runs are trained as one
+   ensemble only when they share the same terms and the device and compilation of its one loop.
 
 Everything is checked before anything is written; what breaks a rule is refused in one line.
 """
@@ -38,6 +39,23 @@ STUDY = "study.json"
 def terms(cfg: TrainConfig) -> dict[str, Any]:
     """The fields that runs of one study share (rule 5)."""
     return {k: v for k, v in cfg.to_dict().items() if k not in (*PER_RUN, *EXECUTION, *HISTORY)}
+
+
+RUN_BY_ONE_LOOP = ("device", "compile")  # how runs ran, but an ensemble's one loop runs all its members so
+
+
+def ensemble_terms(cfg: TrainConfig) -> dict[str, Any]:
+    """What runs trained as one ensemble must share: their study's terms (rule 5), so that a new
+    config field is checked here the moment it becomes a term, and what the shared loop applies."""
+    return terms(cfg) | {k: getattr(cfg, k) for k in RUN_BY_ONE_LOOP}
+
+
+def check_one_ensemble(cfgs: list[TrainConfig]) -> None:
+    first = ensemble_terms(cfgs[0])
+    for cfg in cfgs[1:]:
+        diff = differing(first, ensemble_terms(cfg))
+        if diff:
+            raise SmspaceError(f"runs of one ensemble must share {', '.join(diff)}")
 
 
 def differing(a: dict[str, Any], b: dict[str, Any], ignore: tuple[str, ...] = ()) -> list[str]:
