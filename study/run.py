@@ -28,7 +28,15 @@ from smspace.datagen.setups.contract import check_world
 from smspace.lake.manifest import dataset_id
 from smspace.lake.store import Store, open_store
 from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study, read_study
-from smspace.study.sweep import SweepPlan, check_apart, check_terms, ensembles, prepare, run_ensembles
+from smspace.study.sweep import (
+    SweepPlan,
+    check_apart,
+    check_terms,
+    planned_ensembles,
+    prepare,
+    run_ensembles,
+    study_record,
+)
 from smspace.train.config import RUNS, TrainConfig, parameter_count
 from smspace.train.run_dir import CONFIG, RunDir
 from smspace.train.terms import terms
@@ -217,23 +225,28 @@ def dry_run(
         setup = combo.plan.setup
         spec, probe = get_setup(setup), probes[setup]
         template = combo.plan.template.for_setup(setup, combo.plan.n_transitions, spec.encoder_layers)
-        states = [
-            _run_state(combo.out, template, dataset_id(setup, seed, mode), seed)
-            for seed in study.world_seeds
-            for mode in study.modes
-        ]
-        for state, _ in states:
+        record = {} if overwrite else (study_record(combo.out) or {})
+        states = {
+            name: _run_state(combo.out, name, template.steps, overwrite)
+            for name in (
+                replace(template, dataset_id=dataset_id(setup, seed, mode), seed=seed).run_name
+                for seed in study.world_seeds
+                for mode in study.modes
+            )
+        }
+        for state, _ in states.values():
             counts[state] += 1
-        run_steps = sum(template.steps - step for state, step in states if state != "finished")
-        size = len(ensembles(list(range(len(states))), max_ensemble, workers)[0])
+        run_steps = sum(template.steps - step for state, step in states.values() if state != "finished")
+        recorded, new = planned_ensembles(record, list(states), max_ensemble, workers)
+        todo = [g for g in (recorded + new) if any(states[name][0] != "finished" for name in g)]
+        size = max((len(g) for g in todo), default=1)  # the groups the sweep will train, recorded ones included
         per_step = _ensemble_step_s(template, spec.n_motor, probe.n_sensor, size) / size
-        groups = -(-len(states) // size)
-        seconds = run_steps * per_step / max(1, min(workers, groups))
+        seconds = run_steps * per_step / max(1, min(workers, len(todo)))
         total_s += seconds
         evaluations = template.steps // template.eval_every + 2
         params = parameter_count(template, spec.n_motor, probe.n_sensor)
         per_run = 2 * 12 * params + evaluations * 4 * (probe.n_regular * (template.n_h + 2) + 16 * probe.n_sensor)
-        total_bytes += per_run * sum(state == "new" for state, _ in states)
+        total_bytes += per_run * sum(state == "new" for state, _ in states.values())
         label = folder_name(combo.values) or "(no grid)"
         lines.append(
             f"  {label}: {len(states)} runs, {run_steps} run-steps to train, {per_step * 1e3:.3g} ms per run-step "
@@ -267,14 +280,16 @@ def _refuse_what_run_folders_cannot_hold(out: Store, run_bytes: float) -> None:
         )
 
 
-def _run_state(out: Store, template: TrainConfig, dataset_id: str, seed: int) -> tuple[str, int]:
-    cfg = replace(template, dataset_id=dataset_id, seed=seed)
-    where = out.child(cfg.run_name)
-    if not where.exists(CONFIG):
+def _run_state(out: Store, name: str, steps: int, overwrite: bool) -> tuple[str, int]:
+    """What the sweep will do with a run: create it (new; a run killed before its first checkpoint
+    is created afresh too, as plan_runs does), resume it from its step, or leave it (finished)."""
+    where = out.child(name)
+    if overwrite or not where.exists(CONFIG):
         return "new", 0
-    run = RunDir.open(where)
-    step = run.checkpoint_step()
-    return ("finished", step) if step >= template.steps else ("resume", step)
+    step = RunDir.open(where).checkpoint_step()
+    if step == 0:
+        return "new", 0
+    return ("finished", step) if step >= steps else ("resume", step)
 
 
 def _generation_rate(world, mode: str, n: int = 512) -> float:

@@ -11,7 +11,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -96,6 +96,9 @@ def plan_study(
     recorded = None if overwrite else recorded_study(out)
     resolved = template.for_setup(setup, transitions, get_setup(setup).encoder_layers)
     return study_template(recorded, resolved, explicit, out.url)
+
+
+T = TypeVar("T")
 
 
 def plan_runs(
@@ -260,22 +263,29 @@ def _study_bytes(record: dict[str, Any]) -> bytes:
 
 
 def study_ensembles(out: Store, runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[RunDir]]:
-    """The ensembles the runs train in: those study.json recorded when they first trained (a
-    re-run trains the same groups whatever --max-ensemble or --workers say now, so that resuming
-    never changes the computation), and new groups for new runs, recorded in their turn."""
+    """The ensembles the runs train in (`planned_ensembles`); new groups are recorded in study.json."""
     record = study_record(out) or {}
     by_name = {run.name: run for run in runs}
-    groups = [[by_name[n] for n in names if n in by_name] for names in record.get("ensembles", [])]
-    groups = [g for g in groups if g]
-    grouped = {run.name for g in groups for run in g}
-    new = ensembles([run for run in runs if run.name not in grouped], max_ensemble, workers)
+    recorded, new = planned_ensembles(record, list(by_name), max_ensemble, workers)
     if new:
-        recorded = record.get("ensembles", []) + [[run.name for run in g] for g in new]
-        out.put(STUDY, _study_bytes(record | {"ensembles": recorded}))
-    return groups + new
+        out.put(STUDY, _study_bytes(record | {"ensembles": record.get("ensembles", []) + new}))
+    return [[by_name[name] for name in group] for group in recorded + new]
 
 
-def ensembles(runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[RunDir]]:
+def planned_ensembles(
+    record: dict[str, Any], names: list[str], max_ensemble: int, workers: int
+) -> tuple[list[list[str]], list[list[str]]]:
+    """(the groups study.json recorded when these runs first trained, new groups for the others):
+    a re-run trains the same groups whatever --max-ensemble or --workers say now, so that resuming
+    never changes the computation. The sweep and its dry run plan with this one function."""
+    wanted = set(names)
+    recorded = [[name for name in group if name in wanted] for group in record.get("ensembles", [])]
+    recorded = [group for group in recorded if group]
+    grouped = {name for group in recorded for name in group}
+    return recorded, ensembles([name for name in names if name not in grouped], max_ensemble, workers)
+
+
+def ensembles(runs: list[T], max_ensemble: int, workers: int) -> list[list[T]]:
     """Runs cut into ensembles of at most max_ensemble, and into at least `workers` of them when
     there are enough runs, so that every core (or Ray CPU) gets one. A run's weights do not depend
     on the grouping (docs/MODEL.md §4: only the summation order of the batched matmuls differs)."""

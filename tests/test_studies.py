@@ -160,3 +160,39 @@ def test_logs_get_progress_lines_when_not_on_a_terminal(tmp_path, grid_lake):
     assert len(study) >= 2 and "run-steps/s" in study[-1] and "ETA" in study[-1]
     assert study[-1].startswith("study: 800/800 run-steps (100%)") and "runs 2/2 finished, 0 running" in study[-1]
     assert any(ln.startswith("generating: 3000/3000 transitions") for ln in sweep.stderr.splitlines())
+
+
+def test_a_dry_run_plans_what_the_sweep_will_do_with_the_recorded_ensembles(tmp_path):
+    """The dry run and the sweep plan with one function: groups study.json recorded are kept
+    whatever [run] says now, and a run killed before its first checkpoint is created afresh (new),
+    not resumed."""
+    study = """
+[study]
+setup = "grid"
+modes = ["MM"]
+worlds = 3
+seed = 5
+transitions = 3000
+
+[train]
+steps = {steps}
+eval_every = 100
+batch_size = 50
+
+[run]
+workers = 1
+max_ensemble = {size}
+"""
+    path, lake, out = tmp_path / "s.toml", tmp_path / "lake", tmp_path / "out"
+    path.write_text(study.format(steps=200, size=1))
+    assert smtrain("sweep", path, "--lake", lake, "--out", out).returncode == 0
+    assert json.loads((out / "study.json").read_text())["ensembles"] == [
+        [f"grid-seed{w}-MM-nh3-seed{w}"] for w in (5, 6, 7)
+    ]
+    (out / "grid-seed7-MM-nh3-seed7" / "checkpoint.pt").unlink()  # as if killed before its first checkpoint
+    path.write_text(study.format(steps=300, size=3))
+    dry = smtrain("sweep", path, "--dry-run", "--lake", lake, "--out", out)
+    assert dry.returncode == 0, dry.stderr
+    assert "in ensembles of 1 measured now" in dry.stdout  # the recorded groups, not one group of 3
+    assert "runs: 1 new, 2 to resume, 0 finished" in dry.stdout
+    assert "3 runs, 500 run-steps to train" in dry.stdout  # 2 x 100 resumed + 300 afresh
