@@ -80,3 +80,34 @@ def same_but_provenance(a: dict[str, bytes], b: dict[str, bytes]) -> str | None:
     notes = [m["software"].pop("note", None) for m in manifests]
     assert manifests[0] == manifests[1]
     return notes[0] or notes[1]
+
+
+# a forged shard (tests/test_integrity.py, tests/test_s3.py)
+SHARD = "shard-00001.mcap"  # evaluation reads shard 0: only training meets this one
+
+
+def forged(original: bytes, folder: Path) -> bytes:
+    """A valid shard of the same size whose s_t1 is s_t (a predictable MEM), CRCs recomputed and
+    padded into its metadata: nothing but its content tells it apart."""
+    from smspace.lake.shards import Block, ShardReader, shard_bytes
+    from smspace.lake.transitions import Transitions
+
+    with ShardReader.from_bytes(original, f"{folder}/{SHARD}") as reader:
+        metadata = reader.metadata()
+        blocks = [
+            Block(b.first_index, Transitions(**(b.transitions.columns() | {"s_t1": b.transitions.s_t})))
+            for b in reader.blocks()
+        ]
+    short = len(original) - len(shard_bytes(blocks, metadata | {"pad": ""}))
+    data = shard_bytes(blocks, metadata | {"pad": "x" * short})  # metadata is stored uncompressed
+    assert len(data) == len(original)
+    return data
+
+
+def board_scalars(run: Path) -> dict[str, list[tuple[int, float]]]:
+    """A run's TensorBoard scalars, read back with tensorboard's own reader."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(run / "tensorboard"))
+    events.Reload()
+    return {tag: [(e.step, e.value) for e in events.Scalars(tag)] for tag in events.Tags()["scalars"]}

@@ -10,27 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from smspace.lake.shards import Block, ShardReader, shard_bytes
-from smspace.lake.transitions import Transitions
-
-from .conftest import SAMPLES, smgen, smtrain
-
-SHARD = "shard-00001.mcap"  # evaluation reads shard 0: only training meets this one
-
-
-def forged(original: bytes, folder: Path) -> bytes:
-    """A valid shard of the same size whose s_t1 is s_t (a predictable MEM), CRCs recomputed and
-    padded into its metadata: nothing but its content tells it apart."""
-    with ShardReader.from_bytes(original, f"{folder}/{SHARD}") as reader:
-        metadata = reader.metadata()
-        blocks = [
-            Block(b.first_index, Transitions(**(b.transitions.columns() | {"s_t1": b.transitions.s_t})))
-            for b in reader.blocks()
-        ]
-    short = len(original) - len(shard_bytes(blocks, metadata | {"pad": ""}))
-    data = shard_bytes(blocks, metadata | {"pad": "x" * short})  # metadata is stored uncompressed
-    assert len(data) == len(original)
-    return data
+from .conftest import SAMPLES, SHARD, forged, smgen, smtrain
 
 
 @pytest.fixture()

@@ -91,6 +91,17 @@ def test_only_smspace_is_a_top_level_package():
             assert head not in ("common", "lake", "datagen", "train", "metrics", "schemas", "study"), (path, name)
 
 
+def test_test_modules_share_helpers_through_conftest_not_each_other():
+    """A helper one test module needs from another lives in tests/conftest.py (or numerics, servers,
+    faults): importing a test module runs its fixtures' module scope and couples two suites."""
+    offending = []
+    for path in sorted((ROOT / "tests").glob("test_*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[-1].startswith("test_"):
+                offending.append(f"{path.name} imports {node.module}")
+    assert not offending, offending
+
+
 def test_the_command_line_starts_without_torch():
     """`smtrain --help`, `--version` and every Tab took 3-4 s: torch was imported to build the flags.
     Counted in modules, not seconds (benchmarks/bench_startup.py measures the time)."""

@@ -323,7 +323,8 @@ def test_a_forged_object_on_s3_is_never_trained_on_and_intact_ones_cost_one_head
     metadata request (never downloaded whole to hash it), a forged one of the same size is refused."""
     from smspace.lake.dataset import Dataset
     from smspace.lake.store import RemoteStore
-    from tests.test_integrity import SHARD, forged
+
+    from .conftest import SHARD, forged
 
     lake = "s3://lake/forged"
     assert cli(s3, "smgen", "generate", *GRID, "--mode", "MEM", "--lake", lake).returncode == 0

@@ -5,25 +5,17 @@ shows h of the last evaluation with p as its metadata."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 from google.protobuf import text_format
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.plugins.projector.projector_config_pb2 import ProjectorConfig
 
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES, smtrain
+from .conftest import SAMPLES, board_scalars, smtrain
 
 COLUMNS = {"loss/eval": "eval_loss", "loss/train": "train_loss", "space/D_topo": "d_topo",
            "space/D_metric": "d_metric", "lr": "lr"}  # fmt: skip
-
-
-def board_scalars(run: Path) -> dict[str, list[tuple[int, float]]]:
-    events = EventAccumulator(str(run / "tensorboard"))
-    events.Reload()
-    return {tag: [(e.step, e.value) for e in events.Scalars(tag)] for tag in events.Tags()["scalars"]}
 
 
 def test_a_run_s_tensorboard_files_hold_its_metrics_and_its_learned_space(tmp_path):

@@ -138,7 +138,7 @@ def test_killed_run_resumes_bit_identical(tmp_path, precision):
     for name, tensor in ca["model"].items():
         assert torch.equal(tensor, cb["model"][name]), name
     np.testing.assert_array_equal(RunDir.open(clean).embeddings(2000)[0], RunDir.open(killed).embeddings(2000)[0])
-    from .test_tensorboard import board_scalars  # the evaluations past the kept checkpoint were dropped
+    from .conftest import board_scalars  # the evaluations past the kept checkpoint were dropped
 
     assert board_scalars(killed) == board_scalars(clean)
 
