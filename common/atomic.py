@@ -46,16 +46,13 @@ def atomic_writer(path: Path) -> Iterator[BinaryIO]:
     try:
         with open(tmp, "wb") as fh:
             yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-        fsync_dir(path.parent)
     except OSError as e:
         tmp.unlink(missing_ok=True)
         raise SmspaceError(f"cannot write {path}: {e.strerror or e}") from e
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    commit(tmp, path)
 
 
 def write_atomic(path: Path, data: bytes) -> None:

@@ -148,8 +148,9 @@ def ls_(lake, as_json) -> None:
         raise SmspaceError(f"lake path {store} is a file, not a folder")
     if not store.is_folder():  # a mistyped name must not look like an empty lake
         raise SmspaceError(f"no lake at {store} (nothing was generated there; --lake or $SMSPACE_LAKE names it)")
-    rows = read_catalog(store).to_pylist()
-    left_out = sorted(set(manifest_versions(store)) - {r["id"] for r in rows})
+    versions = manifest_versions(store)  # one listing of the lake, for the catalog and what it leaves out
+    rows = read_catalog(store, versions).to_pylist()
+    left_out = sorted(set(versions) - {r["id"] for r in rows})
     echo_listing(
         rows,
         as_json,

@@ -24,7 +24,7 @@ from smspace.common.errors import SmspaceError, one_line
 from smspace.datagen.executors import ExecutorOptions, open_part_writers
 from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
 from smspace.datagen.setups import get_setup, setup_plugin
-from smspace.lake.catalog import check_lake, rebuild_catalog
+from smspace.lake.catalog import check_lake, make_lake, rebuild_catalog
 from smspace.lake.integrity import file_problem
 from smspace.lake.manifest import (
     GENERATION,
@@ -254,7 +254,7 @@ def check_disk(
     configs = [
         GenConfig(setup, mode, seed, transitions, spec.default_shard_size) for seed in world_seeds for mode in modes
     ]
-    _check_disk(check_lake(lake, create=False), configs, spec.bytes_per_transition, Share())
+    _check_disk(check_lake(lake), configs, spec.bytes_per_transition, Share())
 
 
 def _check_disk(lake: Store, configs: list[GenConfig], bytes_per_transition: int, share: Share) -> None:
@@ -317,11 +317,11 @@ def generate(
     with contextlib.ExitStack() as held:
         probe = world_seeds[0] if world_seeds else None  # the setup contract on a probe batch, before any write
         run_parts = held.enter_context(open_part_writers(executor, setup, options, probe))
-        lake = check_lake(lake, create=False)
+        lake = check_lake(lake)
         sizes = transitions, shard_size
         configs = [GenConfig(setup, mode, seed, *sizes, plugin=record) for seed in world_seeds for mode in modes]
         _check_disk(lake, configs, spec.bytes_per_transition, share)
-        check_lake(lake)
+        make_lake(lake)
         if share.whole:  # one generator per dataset: a second command waits, then finds it done
             for cfg in sorted(configs, key=lambda c: c.dataset_id):
                 busy = f"another smgen is generating {cfg.dataset_id}"
@@ -347,7 +347,7 @@ def generate(
 def finalize(lake: Store | str, folders: list[Store]) -> list[tuple[Manifest, bool]]:
     """Commit datasets whose parts were written by the ranks of an array: every part must be
     present and valid (each is read whole), else nothing is committed and the first gap is named."""
-    lake = check_lake(lake)
+    lake = make_lake(check_lake(lake))
     ready = []
     for folder in folders:
         if folder.exists(MANIFEST):

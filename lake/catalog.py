@@ -39,19 +39,22 @@ CATALOG_SCHEMA = pa.schema(
 )
 
 
-def check_lake(lake: Path | str | Store, create: bool = True) -> Store:
-    """The lake must be a folder (created if missing, unless `create` is False: checks that run
-    before any write); a file there is a user error."""
+def check_lake(lake: Path | str | Store) -> Store:
+    """The lake, which must be a folder or not exist yet (checks that run before any write): a file
+    there is a user error."""
     store = open_store(lake)
     if store.is_file():
         raise SmspaceError(f"lake path {store} is a file, not a folder")
-    if not create:
-        return store
-    try:
-        store.make()
-    except SmspaceError as e:
-        raise SmspaceError(f"cannot create lake folder {store}: {e}") from None
     return store
+
+
+def make_lake(lake: Store) -> Store:
+    """Create a checked lake's folder if missing: the first write of a command that writes one."""
+    try:
+        lake.make()
+    except SmspaceError as e:
+        raise SmspaceError(f"cannot create lake folder {lake}: {e}") from None
+    return lake
 
 
 def manifest_versions(lake: Store) -> dict[str, str]:
@@ -108,19 +111,14 @@ def _rows(manifests: list[Manifest]) -> pa.Table:
     return pa.Table.from_pylist(rows, schema=CATALOG_SCHEMA)
 
 
-def catalog_table(lake: Path | str | Store) -> pa.Table:
-    """One row per sound dataset of the lake, from its manifests."""
-    return _rows(scan_manifests(lake)[0])
-
-
-def rebuild_catalog(lake: Path | str | Store) -> pa.Table:
+def rebuild_catalog(lake: Path | str | Store, versions: dict[str, str] | None = None) -> pa.Table:
     """The catalog anew from the manifests; a broken dataset is left out, never fatal.
 
     It records the manifest version each row was read from, and which datasets were broken: a
     dataset whose manifest was gone when read is recorded neither way, so the next reader finds
     the cache stale and reads it again (a repair that re-commits identical bytes keeps its ETag)."""
     lake = open_store(lake)
-    versions = manifest_versions(lake)
+    versions = manifest_versions(lake) if versions is None else versions
     manifests, broken, gone = _scan(lake, sorted(versions))
     table = _rows(manifests)
     sources = {"versions": {k: v for k, v in versions.items() if k not in gone}, "broken": sorted(broken)}
@@ -139,13 +137,13 @@ def _cache_holds(table: pa.Table, sources: dict, versions: dict[str, str]) -> bo
     return len(ids) == len(set(ids)) and set(ids) == listed
 
 
-def read_catalog(lake: Path | str | Store) -> pa.Table:
-    """The catalog, checked against one listing of the manifests; rebuilt when stale or unreadable.
-    A lake that does not exist yet is empty."""
+def read_catalog(lake: Path | str | Store, versions: dict[str, str] | None = None) -> pa.Table:
+    """The catalog, checked against one listing of the manifests (`versions`, when the caller has
+    just made it); rebuilt when stale or unreadable. A lake that does not exist yet is empty."""
     lake = open_store(lake)
     if not lake.is_folder():
         return CATALOG_SCHEMA.empty_table()
-    versions = manifest_versions(lake)
+    versions = manifest_versions(lake) if versions is None else versions
     try:
         table = parquet.read_table(lake.read_bytes(CATALOG))  # lake/parquet.py: no abort at exit
         sources = json.loads((table.schema.metadata or {}).get(SOURCES_KEY, b"null"))
@@ -157,8 +155,8 @@ def read_catalog(lake: Path | str | Store) -> pa.Table:
     except (OSError, pa.ArrowException, SmspaceError, ValueError):
         pass  # missing, unreadable or of an older layout: derive it again
     try:
-        return rebuild_catalog(lake)
+        return rebuild_catalog(lake, versions)
     except StorageUnreachable:
         raise
     except SmspaceError:  # a lake we may not write: list it all the same
-        return catalog_table(lake)
+        return _rows(_scan(lake, sorted(versions))[0])

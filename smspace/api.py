@@ -10,12 +10,12 @@ from typing import TYPE_CHECKING, Any
 
 import pyarrow as pa
 
-from smspace.lake.catalog import check_lake, read_catalog
+from smspace.lake.catalog import read_catalog
 from smspace.lake.dataset import Dataset, resolve_dataset
 from smspace.lake.dataset import lake_store as _open_store
 from smspace.lake.store import Store
 from smspace.lake.transitions import parse_modes
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunView
 
 if TYPE_CHECKING:
     from smspace.train.engine import Sink
@@ -72,18 +72,18 @@ def generate(
     from smspace.datagen.setups import get_setup
 
     spec = get_setup(setup)
-    store = check_lake(lake.store if isinstance(lake, Lake) else _open_store(lake))
+    store = lake.store if isinstance(lake, Lake) else _open_store(lake)  # generation checks it
     mode_list = parse_modes(modes) if isinstance(modes, str) else list(modes)
     n = spec.default_transitions if transitions is None else transitions
     results = run(store, setup, mode_list, range(seed, seed + worlds), n, spec.default_shard_size, workers=workers)
     return [Dataset(store.child(manifest.dataset_id)) for manifest, _ in results]
 
 
-class Run(RunDir):
+class Run(RunView):
     """A run folder: config, metrics, embeddings of h at every evaluation, checkpoint, status."""
 
     def __repr__(self) -> str:
-        return f"Run({str(self.path)!r})"
+        return f"Run({self.url!r})"
 
 
 def fit(
@@ -114,13 +114,13 @@ def fit(
     return Run(run.store)
 
 
-def resume(run: str | Path | RunDir, steps: int | None = None, sinks: Sequence[Sink] = ()) -> Run:
+def resume(run: str | Path | RunView, steps: int | None = None, sinks: Sequence[Sink] = ()) -> Run:
     """Continue a run from its last checkpoint (`steps` may extend it: train/terms.py)."""
     from smspace.train.config import TrainConfig
     from smspace.train.fit import fit as run_fit
     from smspace.train.fit import plan_fit
 
-    where = str(run.path) if isinstance(run, RunDir) else str(run)
+    where = run.url if isinstance(run, RunView) else str(run)
     template = TrainConfig(dataset="", **({} if steps is None else {"steps": steps}))
     plan = plan_fit(template, None, None, None, where, False, frozenset({"steps"} if steps is not None else ()), 1)
     started = plan.start()
@@ -128,9 +128,9 @@ def resume(run: str | Path | RunDir, steps: int | None = None, sinks: Sequence[S
     return Run(started.store)
 
 
-def open_run(where: str | Path | RunDir) -> Run:
+def open_run(where: str | Path | RunView) -> Run:
     """An existing run folder (a folder or an fsspec URL), to read its config, metrics and h."""
-    return Run(RunDir.open(where.store if isinstance(where, RunDir) else where).store)
+    return Run.open(where.store if isinstance(where, RunView) else where)
 
 
 def run_study(
@@ -140,7 +140,7 @@ def run_study(
     workers: int | None = None,
 ) -> list[Run]:
     """Run (or resume, or extend) a study file (docs/STUDIES.md), as `smtrain sweep STUDY.toml`."""
-    from smspace.study.run import run_study as run
+    from smspace.study.runner import run_study as run
 
     store = lake.store if isinstance(lake, Lake) else open_lake(lake).store
     return [Run(r.store) for r in run(study_file, store, None if out is None else str(out), workers=workers)]

@@ -20,15 +20,7 @@ from smspace.common.cli import (
     on_interrupt,
 )
 from smspace.common.errors import SmspaceError
-from smspace.datagen.options import (
-    check_seed_range,
-    first_seed_option,
-    generator_workers_option,
-    modes_option,
-    setup_option,
-    transitions_option,
-    worlds_option,
-)
+from smspace.datagen import options as generation
 from smspace.train.cli import main, say_precision
 from smspace.train.config import RUNS, flag_fields, flag_name
 from smspace.train.options import config_from_flags, config_options, given_fields, on_command_line
@@ -36,12 +28,12 @@ from smspace.train.options import config_from_flags, config_options, given_field
 
 @main.command()
 @click.argument("study_file", required=False, type=click.Path(path_type=Path))
-@setup_option()
-@modes_option("--modes", "modes", default="MEM,MM,MME", show_default=True)
-@worlds_option(default=50)
-@first_seed_option("first_world", help="First world seed; a run's seed is its world's.")
-@transitions_option()
-@generator_workers_option("--gen-workers", "gen_workers")
+@generation.setup_option()
+@generation.modes_option("--modes", "modes", default="MEM,MM,MME", show_default=True)
+@generation.worlds_option(default=50)
+@generation.first_seed_option("first_world", help="First world seed; a run's seed is its world's.")
+@generation.transitions_option()
+@generation.generator_workers_option("--gen-workers", "gen_workers")
 @LAKE_OPTION
 @click.option(
     "--out", default=None, help="Folder (or fsspec URL) for the run folders [default: runs, or runs/<study name>]."
@@ -101,7 +93,7 @@ def sweep(
     if setup_name is None:
         raise SmspaceError("give a study file or --setup (smtrain sweep --help)")
     get_setup(setup_name)
-    check_seed_range(first_world, worlds)
+    generation.check_seed_range(first_world, worlds)
     mode_list = parse_modes(modes)
     template = config_from_flags(flags)
     say_precision(flags)
@@ -129,7 +121,7 @@ def sweep(
             notify=lambda line: click.echo(line, err=True),
         )
     for run in runs:
-        click.echo(display_name(str(run.path)))
+        click.echo(display_name(run.url))
 
 
 STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions", "max_ensemble")
@@ -138,8 +130,8 @@ STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions"
 def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run) -> None:
     """`smtrain sweep STUDY.toml`: what the study computes comes from the file alone."""
     from smspace.lake.dataset import lake_store
-    from smspace.study.run import dry_run as plan_only
-    from smspace.study.run import run_study
+    from smspace.study.runner import dry_run as plan_only
+    from smspace.study.runner import run_study
 
     given = [p.opts[0] for p in ctx.command.params if p.name in STUDY_FILE_KEYS and on_command_line(ctx, p.name)]
     given += [flag_name(f) for f in flag_fields() if f.name in given_fields(ctx)]
@@ -158,7 +150,7 @@ def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen
             notify=lambda line: click.echo(line, err=True),
         )  # fmt: skip
     for run in runs:
-        click.echo(display_name(str(run.path)))
+        click.echo(display_name(run.url))
 
 
 if __name__ == "__main__":

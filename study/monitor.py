@@ -17,13 +17,13 @@ POLL_S = 0.5
 
 
 class StudyMonitor:
-    """`chunks`: key -> (runs in the ensemble, step it starts from, step it ends at)."""
+    """`ensembles`: key -> (runs in the ensemble, step it starts from, step it ends at)."""
 
-    def __init__(self, chunks: dict[str, tuple[int, int, int]], enabled: bool = True):
-        self.chunks = chunks
-        self.at = {key: start for key, (_, start, _) in chunks.items()}
-        total = sum(runs * (end - start) for runs, start, end in chunks.values())
-        self.runs = sum(runs for runs, _, _ in chunks.values())
+    def __init__(self, ensembles: dict[str, tuple[int, int, int]], enabled: bool = True):
+        self.ensembles = ensembles
+        self.at = {key: start for key, (_, start, _) in ensembles.items()}
+        total = sum(runs * (end - start) for runs, start, end in ensembles.values())
+        self.runs = sum(runs for runs, _, _ in ensembles.values())
         self.said: set[str] = set()
         self.bar = Progress("study", total, "run-step", enabled=enabled and total > 0)
         self._show()
@@ -33,12 +33,12 @@ class StudyMonitor:
             self.at[key] = max(self.at[key], step)
 
     def _show(self) -> None:
-        finished = sum(runs for key, (runs, _, end) in self.chunks.items() if self.at[key] >= end)
+        finished = sum(runs for key, (runs, _, end) in self.ensembles.items() if self.at[key] >= end)
         running = sum(
-            runs for key, (runs, start, end) in self.chunks.items() if start < end and start < self.at[key] < end
+            runs for key, (runs, start, end) in self.ensembles.items() if start < end and start < self.at[key] < end
         )
-        done = sum(runs * (self.at[key] - start) for key, (runs, start, _) in self.chunks.items())
-        already = sum(runs for runs, start, end in self.chunks.values() if start >= end)
+        done = sum(runs * (self.at[key] - start) for key, (runs, start, _) in self.ensembles.items())
+        already = sum(runs for runs, start, end in self.ensembles.values() if start >= end)
         self.bar.set_postfix(runs=f"{finished + already}/{self.runs} finished, {running} running")
         self.bar.set(done)
 

@@ -23,7 +23,6 @@ from smspace.common.executors import WorkerDied, import_ray, open_executor
 from smspace.datagen.generate import generate
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup, setup_plugin
-from smspace.lake.catalog import check_lake
 from smspace.lake.manifest import load_manifest
 from smspace.lake.store import StorageUnreachable, Store, open_store, within
 from smspace.study.monitor import StudyMonitor, monitored
@@ -169,8 +168,8 @@ def sweep(
     check_apart(out, lake)
     if executor == "ray":
         import_ray()  # a missing Ray is said before any dataset is generated
-    runs, chunks = prepare(study, lake, out, gen_workers, max_ensemble, overwrite, workers, notify)
-    run_ensembles(chunks, executor, workers, template.threads, template.device)
+    runs, ensembles_todo = prepare(study, lake, out, gen_workers, max_ensemble, overwrite, workers, notify)
+    run_ensembles(ensembles_todo, executor, workers, template.threads, template.device)
     return runs
 
 
@@ -247,15 +246,15 @@ def prepare(
         lake, study.setup, study.modes, study.world_seeds, study.n_transitions, spec.default_shard_size,
         workers=gen_workers, notify=notify,
     )  # fmt: skip
-    datasets = [check_lake(lake).child(m.dataset_id) for m, _ in results]
+    datasets = [open_store(lake).child(m.dataset_id) for m, _ in results]
     plans = plan_runs(template, datasets, out, overwrite)
     at = {run.name: step for run, step in plans}
-    chunks = []
+    ensembles_todo = []
     for group in study_ensembles(out, [run for run, _ in plans], max_ensemble, workers):
         todo = [run for run in group if at[run.name] < run.config.steps]
         if todo:  # resumed from the step all members reached (train/fit.py, resume_from_folders)
-            chunks.append((todo, min(at[run.name] for run in todo) > 0))
-    return [run for run, _ in plans], chunks
+            ensembles_todo.append((todo, min(at[run.name] for run in todo) > 0))
+    return [run for run, _ in plans], ensembles_todo
 
 
 def _study_bytes(record: dict[str, Any]) -> bytes:
@@ -293,7 +292,7 @@ def ensembles(runs: list[T], max_ensemble: int, workers: int) -> list[list[T]]:
     return [runs[i : i + size] for i in range(0, len(runs), size)]
 
 
-def train_chunk(paths: list[str], resume: bool, threads: int, channel: Any = None, key: str = "") -> int:
+def train_one_ensemble(paths: list[str], resume: bool, threads: int, channel: Any = None, key: str = "") -> int:
     """One ensemble, wherever it runs (this process, a spawned one, a Ray worker); returns its size.
     Its step goes on `channel` about every second (study/monitor.py)."""
     runs = [RunDir.open(p) for p in paths]
@@ -339,36 +338,36 @@ def _mark_stopped(runs: list[RunDir], state: str, line: str) -> None:
 
 
 def run_ensembles(
-    chunks: list[tuple[list[RunDir], bool]], executor: str, workers: int, threads: int, device: str
+    ensembles_todo: list[tuple[list[RunDir], bool]], executor: str, workers: int, threads: int, device: str
 ) -> None:
     """Train every ensemble where the executor puts it (common/executors.py): in this process for
     one worker, else one spawned process per ensemble up to `workers` at a time, or a Ray task
     each (never retried by Ray: a task started again would not know how far it got; re-running
     the sweep resumes). The study's progress is one line (study/monitor.py)."""
-    if not chunks:
+    if not ensembles_todo:
         return
-    for runs, _ in chunks:  # whoever trains them claims them, this process included
+    for runs, _ in ensembles_todo:  # whoever trains them claims them, this process included
         for run in runs:
             run.release()
     starts = {str(i): (len(runs), _start_step(runs) if resume else 0, runs[0].config.steps)
-              for i, (runs, resume) in enumerate(chunks)}  # fmt: skip
+              for i, (runs, resume) in enumerate(ensembles_todo)}  # fmt: skip
     gpus = 1 if device.startswith("cuda") else 0
     try:
         with open_executor(executor, workers, num_cpus=threads, num_gpus=gpus, max_retries=0) as ex, ex.channel() as ch:
             tasks = [
-                ([str(run.path) for run in runs], resume, threads, ch, str(i))
-                for i, (runs, resume) in enumerate(chunks)
+                ([run.url for run in runs], resume, threads, ch, str(i))
+                for i, (runs, resume) in enumerate(ensembles_todo)
             ]
             with monitored(StudyMonitor(starts), ch):
-                for _ in ex.map(train_chunk, tasks):
+                for _ in ex.map(train_one_ensemble, tasks):
                     pass
     except WorkerDied as e:
         line = f"{e}; the runs keep their last checkpoints: the same command resumes them"
-        _mark_stopped([run for runs, _ in chunks for run in runs], "failed", line)
+        _mark_stopped([run for runs, _ in ensembles_todo for run in runs], "failed", line)
         raise WorkerDied(line) from None
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the workers were killed mid-step, as a lone fit is
         line = "interrupted; the checkpoint of its last evaluation is kept: the same sweep resumes it"
-        _mark_stopped([run for runs, _ in chunks for run in runs], "interrupted", line)
+        _mark_stopped([run for runs, _ in ensembles_todo for run in runs], "interrupted", line)
         raise
 
 

@@ -68,3 +68,17 @@ def test_a_sink_of_ones_own_sees_each_evaluation_after_the_run_folder_committed_
     assert status["state"] == "failed" and "server is down" in status["message"] and status["step"] == 40
     resumed = smspace.resume(out, sinks=[])
     assert [row["step"] for row in resumed.metrics()] == [0, 20, 40, 60]
+
+
+def test_a_run_a_user_opens_only_reads(tmp_path):
+    """smspace.Run hands users what ls, info, report and view read, and no method that writes:
+    a run folder is written by the process training it alone."""
+    out = tmp_path / "run"
+    run = smspace.fit("grid-seed0-MM", lake=SAMPLES, out=out, steps=20, eval_every=10)
+    opened = smspace.open_run(out)
+    writes = ("write", "set_", "save", "claim", "release", "create", "truncate", "roll_back", "record_")
+    assert not [name for name in dir(opened) if name.lstrip("_").startswith(writes)]
+    assert opened.summary() | {"elapsed_s": None} == run.summary() | {"elapsed_s": None}
+    assert opened.summary()["state"] == "finished" and opened.summary()["step"] == 20
+    h, p = opened.embeddings(20)
+    assert h.shape == (125, 3) and len(p) == 125 and opened.load_checkpoint()["step"] == 20

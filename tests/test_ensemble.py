@@ -25,7 +25,7 @@ def config(mode: str, seed: int, steps: int = 60, eval_every: int = 10) -> Train
 
 
 def checkpoint(run: RunDir) -> dict:
-    return torch.load(run.path / "checkpoint.pt", weights_only=True)
+    return torch.load(run.local_path / "checkpoint.pt", weights_only=True)
 
 
 @pytest.mark.numerical
@@ -183,7 +183,7 @@ def test_six_motor_setups_and_nh25_run_through_the_same_commands(tmp_path, setup
     run = RunDir.open(tmp_path / "runs" / f"{setup}-seed0-MME-nh25-seed0")
     h, p = run.embeddings(10)
     assert h.shape == (15625, 25) and p.shape == (15625, 2)
-    state = torch.load(run.path / "checkpoint.pt", weights_only=True)["model"]
+    state = torch.load(run.local_path / "checkpoint.pt", weights_only=True)["model"]
     assert state["encoder.0.weight"].shape == (6, 500)  # the paper's larger encoder for six motors (in, out)
     assert np.isfinite(run.metrics()[-1]["d_metric"])
 
@@ -239,7 +239,7 @@ def test_report_keeps_studies_apart_and_projects_wide_h(tmp_path):
             cfg = replace(config(mode, 7, steps=20), n_h=n_h, eval_every=10)
             run = RunDir.create(tmp_path / f"{mode}-nh{n_h}", cfg, False)
             fit(cfg, run)
-            runs.append(run.path)
+            runs.append(run.local_path)
     result = smtrain("report", *runs, "--out", tmp_path / "report")
     assert result.exit_code == 0, result.output
     names = {p.name for p in (tmp_path / "report").iterdir()}
@@ -273,7 +273,7 @@ def test_report_never_averages_values_of_different_steps(tmp_path):
     fit(a.config, a)
     b = RunDir.create(tmp_path / "b", config("MM", 2, 80, 20), False)
     fit(b.config, b)
-    result = smtrain("report", a.path, b.path, "--out", tmp_path / "report")
+    result = smtrain("report", a.local_path, b.local_path, "--out", tmp_path / "report")
     assert result.exit_code == 0, result.output
     assert "they differ in eval_every, lr_decay_steps, steps" in result.stderr
     rows = {r["study"]: r for r in final_rows(tmp_path / "report")}
@@ -299,7 +299,7 @@ def test_report_of_runs_in_progress_compares_them_at_one_step(tmp_path):
         fit(run.config, run)
         runs.append(run)
     runs[1].write_metrics(runs[1].metrics()[:3])  # steps 0, 20, 40: as if still training
-    result = smtrain("report", *(r.path for r in runs), "--out", tmp_path / "report")
+    result = smtrain("report", *(r.local_path for r in runs), "--out", tmp_path / "report")
     assert result.exit_code == 0, result.output
     assert "shown up to step 40, the last every run reached (1 run(s) are further along)" in result.stderr
     (row,) = final_rows(tmp_path / "report")
@@ -312,8 +312,8 @@ def test_report_refuses_the_same_run_twice(tmp_path):
     fit(run.config, run)
     import shutil
 
-    shutil.copytree(run.path, tmp_path / "copy")
-    result = smtrain("report", run.path, tmp_path / "copy", "--out", tmp_path / "report")
+    shutil.copytree(run.local_path, tmp_path / "copy")
+    result = smtrain("report", run.local_path, tmp_path / "copy", "--out", tmp_path / "report")
     assert result.exit_code == 2 and "are the same run" in result.output
 
 

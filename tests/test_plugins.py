@@ -64,7 +64,7 @@ def test_a_plugin_network_trains_alone_and_in_a_sweep_the_same_run(line_lake, tm
     report = smtrain("report", *sorted(p for p in runs.iterdir() if p.is_dir()), "--out", tmp_path / "report")
     assert report.exit_code == 0, report.output
     assert "| line |" in (tmp_path / "report" / "final.md").read_text()
-    view = smtrain("view", swept.path, "--save", tmp_path / "run.rrd")
+    view = smtrain("view", swept.local_path, "--save", tmp_path / "run.rrd")
     assert view.exit_code == 0, view.output
 
 

@@ -1,4 +1,4 @@
-"""Studies as files (study/file.py, study/run.py), and progress in every log (common/progress.py)."""
+"""Studies as files (study/file.py, study/runner.py), and progress in every log (common/progress.py)."""
 
 from __future__ import annotations
 
@@ -166,31 +166,19 @@ def test_a_dry_run_plans_what_the_sweep_will_do_with_the_recorded_ensembles(tmp_
     """The dry run and the sweep plan with one function: groups study.json recorded are kept
     whatever [run] says now, and a run killed before its first checkpoint is created afresh (new),
     not resumed."""
-    study = """
-[study]
-setup = "grid"
-modes = ["MM"]
-worlds = 3
-seed = 5
-transitions = 3000
 
-[train]
-steps = {steps}
-eval_every = 100
-batch_size = 50
+    def study(steps: int, size: int) -> str:  # three worlds, no grid, one worker
+        text = TINY.format(steps=steps, extra="").replace("worlds = 1", "worlds = 3")
+        return text.replace("[grid]\nn_h = [3, 4]\n", "").replace("workers = 2", f"workers = 1\nmax_ensemble = {size}")
 
-[run]
-workers = 1
-max_ensemble = {size}
-"""
     path, lake, out = tmp_path / "s.toml", tmp_path / "lake", tmp_path / "out"
-    path.write_text(study.format(steps=200, size=1))
+    path.write_text(study(200, 1))
     assert smtrain("sweep", path, "--lake", lake, "--out", out).returncode == 0
     assert json.loads((out / "study.json").read_text())["ensembles"] == [
         [f"grid-seed{w}-MM-nh3-seed{w}"] for w in (5, 6, 7)
     ]
     (out / "grid-seed7-MM-nh3-seed7" / "checkpoint.pt").unlink()  # as if killed before its first checkpoint
-    path.write_text(study.format(steps=300, size=3))
+    path.write_text(study(300, 3))
     dry = smtrain("sweep", path, "--dry-run", "--lake", lake, "--out", out)
     assert dry.returncode == 0, dry.stderr
     assert "in ensembles of 1 measured now" in dry.stdout  # the recorded groups, not one group of 3

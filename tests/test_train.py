@@ -376,9 +376,9 @@ def test_a_run_resumed_from_its_step_0_checkpoint_records_step_0_once(tmp_path, 
         with pytest.raises(KeyboardInterrupt):
             run_fit(cfg, run)
     assert run.checkpoint_step() == 0 and [r["step"] for r in run.metrics()] == [0]
-    result = smtrain("fit", "--resume", run.path)
+    result = smtrain("fit", "--resume", run.local_path)
     assert result.exit_code == 0, result.output
-    assert [r["step"] for r in RunDir.open(run.path).metrics()] == [0, 100, 200]
+    assert [r["step"] for r in RunDir.open(run.local_path).metrics()] == [0, 100, 200]
 
 
 @pytest.mark.numerical
@@ -408,7 +408,7 @@ def test_a_checkpoint_of_smspace_0_1_resumes_bit_identical(tmp_path, monkeypatch
         patched.setattr(SingleLearner, "train_step", stop_after_20)
         with pytest.raises(KeyboardInterrupt):
             run_fit(replace(cfg), old)
-    ckpt = torch.load(old.path / "checkpoint.pt", weights_only=True)
+    ckpt = torch.load(old.local_path / "checkpoint.pt", weights_only=True)
     assert ckpt["step"] == 20 and ckpt.pop("layout") == "in-out"
     names = list(ckpt["model"])
     for i, name in enumerate(names):  # as smspace 0.1 wrote it
@@ -416,9 +416,9 @@ def test_a_checkpoint_of_smspace_0_1_resumes_bit_identical(tmp_path, monkeypatch
             ckpt["model"][name] = ckpt["model"][name].t().contiguous()
             for key in ("exp_avg", "exp_avg_sq"):
                 ckpt["optimizer"]["state"][i][key] = ckpt["optimizer"]["state"][i][key].t().contiguous()
-    torch.save(ckpt, old.path / "checkpoint.pt")
-    assert smtrain("fit", "--resume", old.path).exit_code == 0
-    a, b = clean.metrics(), RunDir.open(old.path).metrics()
+    torch.save(ckpt, old.local_path / "checkpoint.pt")
+    assert smtrain("fit", "--resume", old.local_path).exit_code == 0
+    a, b = clean.metrics(), RunDir.open(old.local_path).metrics()
     for row in (*a, *b):
         row.pop("elapsed_s")
     assert json.dumps(a) == json.dumps(b)

@@ -73,7 +73,7 @@ def fit(dataset, lake, out, resume_dir, overwrite, nproc, **flags) -> None:
     with rank_of(plan, lambda line: click.echo(line, err=True)) as (ranks, run):
         result = run_fit(plan.cfg, run, resume=plan.resume, ranks=ranks)
     if ranks.primary:
-        click.echo(f"run: {display_name(str(run.path))}")
+        click.echo(f"run: {display_name(run.url)}")
         click.echo(json.dumps({k: v for k, v in result.items() if k != "elapsed_s"}))
 
 
@@ -104,39 +104,16 @@ def report(runs, out) -> None:
 def _listed(path: Path) -> dict:
     """A run's summary, or a "broken" row saying why it cannot be read: one bad run hides no other."""
     from smspace.lake.store import StorageUnreachable
+    from smspace.train.run_dir import RunView
 
     try:
-        return _run_summary(path)
+        return RunView.open(path).summary()
     except StorageUnreachable:
         raise  # a frozen endpoint ends the listing, not one "broken" row per run
     except SmspaceError as e:
         empty = dict.fromkeys(("dataset_id", "n_h", "seed", "eval_loss", "d_topo", "d_metric", "elapsed_s"))
         where = display_name(str(getattr(path, "url", path)))
         return {"run": where, "state": "broken", "message": str(e), "step": 0, "steps": 0} | empty
-
-
-def _run_summary(path: Path) -> dict:
-    from smspace.train.run_dir import RunDir
-
-    run = RunDir.open(path)
-    cfg = run.config
-    rows = run.metrics()
-    last = rows[-1] if rows else {}
-    status = run.status()
-    return {
-        "run": str(run.path),
-        "dataset_id": cfg.dataset_id,
-        "state": status["state"],
-        "message": status["message"],
-        "step": last.get("step", 0),
-        "steps": cfg.steps,
-        "n_h": cfg.n_h,
-        "seed": cfg.seed,
-        "eval_loss": last.get("eval_loss"),
-        "d_topo": last.get("d_topo"),
-        "d_metric": last.get("d_metric"),
-        "elapsed_s": last.get("elapsed_s"),
-    }
 
 
 def _leaf(where: str) -> str:
@@ -178,10 +155,11 @@ def ls_(runs, as_json) -> None:
 def info(run, as_json) -> None:
     """Describe one run: config, state, last metrics, and what made it (the software and machine
     of each training session, the software that made its dataset)."""
-    from smspace.train.run_dir import RunDir
+    from smspace.train.run_dir import RunView
 
-    cfg = RunDir.open(run).config
-    summary = _run_summary(run) | {"config": cfg.to_dict(), "dataset_software": _dataset_software(cfg.dataset)}
+    opened = RunView.open(run)
+    cfg = opened.config
+    summary = opened.summary() | {"config": cfg.to_dict(), "dataset_software": _dataset_software(cfg.dataset)}
     if as_json:
         click.echo(json.dumps(summary, indent=1))
         return
@@ -227,10 +205,10 @@ def _dataset_software(where: str) -> dict | None:
 @friendly_errors
 def view(run, output) -> None:
     """Replay a run in rerun: h coloured by p, the affine projection, curves, predictions."""
-    from smspace.train.run_dir import RunDir
+    from smspace.train.run_dir import RunView
     from smspace.train.view import view_run
 
-    n = view_run(RunDir.open(run), output)
+    n = view_run(RunView.open(run), output)
     if output.save:
         click.echo(f"{output.save}\t{n} evaluations")
 

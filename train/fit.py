@@ -72,16 +72,16 @@ def plan_fit(
             raise SmspaceError(f"--resume continues a run with its own config; drop {' '.join(extra) or 'DATASET'}")
         run = RunDir.open(resume)
         steps = template.steps if "steps" in given else None
-        cfg, change = resumed(run.config, str(run.path), steps, world)
-        ds = run_dataset(cfg, str(run.path)).verify()
+        cfg, change = resumed(run.config, run.url, steps, world)
+        ds = run_dataset(cfg, run.url).verify()
         manifest = ds.manifest
         cfg = cfg if cfg.encoder_layers else cfg.for_dataset(ds.store, manifest)  # a config built by hand
         check_resources(cfg, manifest)
         check_network(cfg, manifest)
         checkpoint = run.load_checkpoint()
-        engine.check_checkpoint(checkpoint, cfg, *_shape(manifest), f"{run.path}/{CHECKPOINT}")
+        engine.check_checkpoint(checkpoint, cfg, *_shape(manifest), f"{run.url}/{CHECKPOINT}")
         run.check_whole(checkpoint)
-        return FitPlan(cfg, str(run.path), resume=True, change=change)
+        return FitPlan(cfg, run.url, resume=True, change=change)
     if dataset is None:
         raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
     ds = Dataset.open(dataset, lake).verify()
@@ -148,7 +148,7 @@ def eval_data(ds: Dataset, n: int, device: torch.device) -> EvalData:
 
 def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Ranks = SINGLE) -> tuple[Member, Dataset]:
     """What the engine trains of a run folder: its config, stream and evaluation set."""
-    ds = run_dataset(cfg, str(run.path))
+    ds = run_dataset(cfg, run.url)
     if not cfg.encoder_layers:  # a config built by hand: resolved (the setup's encoder), and recorded so
         cfg = cfg.for_dataset(ds.store, ds.manifest)
         if ranks.primary:
@@ -157,7 +157,7 @@ def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Rank
     stream = TransitionStream(
         ds, batch, seed=cfg.seed, window=cfg.shuffle_window, rank=ranks.rank, world_size=ranks.world
     )
-    return Member(str(run.path), cfg, stream, eval_data(ds, cfg.eval_transitions, device)), ds
+    return Member(run.url, cfg, stream, eval_data(ds, cfg.eval_transitions, device)), ds
 
 
 # --- the run folder: where evaluations go, and where a resume starts ------------------------------
@@ -201,7 +201,7 @@ def resume_from_folders(
                 checkpoints[r] = {"step": None}
             if checkpoints[r]["step"] != step:
                 raise SmspaceError(
-                    f"runs trained together must resume at one step: {run.path} is at step "
+                    f"runs trained together must resume at one step: {run.url} is at step "
                     f"{ckpt['step']} and keeps no checkpoint of step {step}"
                 )
         run.check_whole(checkpoints[r])

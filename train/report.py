@@ -16,7 +16,8 @@ from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
 from smspace.lake.store import StorageUnreachable, within
 from smspace.metrics import affine_projection
-from smspace.train.run_dir import RunDir
+from smspace.train.colours import position_colours
+from smspace.train.run_dir import RunView
 from smspace.train.terms import differing, terms
 
 MODE_COLOURS = {"MEM": "tab:red", "MM": "tab:green", "MME": "tab:blue"}
@@ -25,7 +26,7 @@ METRICS = (("eval_loss", "loss"), ("d_topo", "D_topo"), ("d_metric", "D_metric")
 
 @dataclass
 class RunData:
-    run: RunDir
+    run: RunView
     mode: str
     rows: list[dict[str, Any]]
     setup: str = ""
@@ -67,7 +68,7 @@ class Study:
 def load_runs(paths: list[Path]) -> list[RunData]:
     runs, seen = [], {}
     for path in paths:
-        run = RunDir.open(path)
+        run = RunView.open(path)
         rows = run.metrics()
         if not rows:
             raise SmspaceError(f"{path} has no evaluations yet")
@@ -179,15 +180,6 @@ def curves_figure(study: Study, path: Path) -> None:
     fig.tight_layout(rect=(0, 0.07, 1, 0.95))
     fig.savefig(path, dpi=120)
     plt.close(fig)
-
-
-def position_colours(p: np.ndarray) -> np.ndarray:
-    """A colour per position, as in the paper's figure: red grows with p_x, blue with p_y, so
-    that neighbours in space have neighbouring colours in every panel."""
-    lo, hi = p.min(0), p.max(0)
-    u = (p - lo) / np.where(hi > lo, hi - lo, 1.0)
-    x, y = u[:, 0], u[:, 1] if p.shape[1] > 1 else np.zeros(len(p))
-    return np.clip(np.stack([0.15 + 0.8 * x, 0.35 + 0.3 * (1 - np.abs(x - y)), 0.15 + 0.8 * y], 1), 0, 1)
 
 
 def projection_figure(run: RunData, step: int, path: Path) -> None:

@@ -15,7 +15,7 @@ import socket
 import uuid
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 import pyarrow as pa
@@ -66,25 +66,19 @@ PREDICTED, TRUE = "s_t1_pred", "s_t1_true"
 EVALUATION_FILE = re.compile(r"[a-z0-9_]+-(?P<step>\d{7})\.(parquet|npy)")  # step-…, s_t1_pred-…, s_t1_true-…
 
 
-class RunDir:
-    """A run folder on this machine or on object storage (any fsspec URL): every file is written
-    whole in one step, the checkpoint last at each evaluation (it is the commit record: resume
-    trims what later evaluations wrote)."""
+class RunView:
+    """A run folder read, never written: what `ls`, `info`, `report`, `view` and smspace.open_run
+    need. Only a RunDir (below) writes, and only the process that claimed it."""
 
     def __init__(self, where: Path | str | Store):
         self.store: Store = open_store(where)
-        self._lock: HeldLock | None = None
-        # while this process trains the run: the version of each file it last saw or wrote (None:
-        # absent), so that on object storage it writes over its own versions only (lake/store.py)
-        self._versions: dict[str, str | None] | None = None
-        self._lost = False  # another process took the folder over: this one writes nothing more
         self._run_id: str | None = None
-        self._last_checkpoint: bytes | None = None  # the bytes this process last wrote or resumed from
 
     @property
-    def path(self) -> Path | str:
-        """The folder (a Path locally, else its URL), for messages and listings."""
-        return self.store.where
+    def url(self) -> str:
+        """Where the folder is: a local path or an fsspec URL, for messages and listings (a local
+        run's Path is `local_path`)."""
+        return self.store.url
 
     @property
     def name(self) -> str:
@@ -97,12 +91,173 @@ class RunDir:
     def _embeddings(self) -> Store:
         return self.store.child(EMBEDDINGS)
 
+    @classmethod
+    def open(cls, where: Path | str | Store) -> Self:
+        run = cls(where)
+        try:
+            found = run.store.exists(CONFIG)
+        except NotADirectoryError:
+            found = False
+        if not found:
+            raise SmspaceError(f"{run.url} is not a run folder (no {CONFIG})")
+        return run
+
+    @property
+    def run_id(self) -> str:
+        """The id config.json gives this run; every file of the run carries it, so a folder whose
+        parts were written by different runs is told apart ("" for runs of an older smspace)."""
+        if self._run_id is None:
+            self._run_id = self.config.run_id
+        return self._run_id
+
+    def _read(self, name: str, store: Store | None = None) -> bytes:
+        return (store or self.store).read_bytes(name)
+
+    @property
+    def config(self) -> TrainConfig:
+        try:
+            return TrainConfig.from_dict(json.loads(self._read(CONFIG)))
+        except FileNotFoundError:
+            raise SmspaceError(f"{self.url} is not a run folder (no {CONFIG})") from None
+        except (json.JSONDecodeError, UnicodeDecodeError, TypeError, AttributeError) as e:
+            raise SmspaceError(f"{self.url}/{CONFIG} is unreadable ({type(e).__name__})") from e
+        except SmspaceError as e:  # a value no flag would take (a NaN lr_start): name the file
+            raise SmspaceError(f"{self.url}/{CONFIG} holds a config no run could have: {e}") from e
+
+    def recorded_keys(self) -> set[str]:
+        """The config fields config.json holds (an older smspace recorded fewer)."""
+        try:
+            raw = json.loads(self._read(CONFIG))
+        except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
+            return set()
+        return set(raw) if isinstance(raw, dict) else set()
+
+    def status(self) -> dict[str, Any]:
+        """The recorded state; "running" becomes "stale" when its process is gone from this host."""
+        try:
+            status = json.loads(self._read(STATUS))
+        except FileNotFoundError:
+            return {"state": "created", "step": 0, "message": ""}
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise SmspaceError(f"{self.url}/{STATUS} is unreadable ({type(e).__name__})") from e
+        fields = {"state": str, "step": int, "message": str}
+        if not isinstance(status, dict) or not all(isinstance(status.get(k), t) for k, t in fields.items()):
+            raise SmspaceError(f"{self.url}/{STATUS} is unreadable (state, step and message must be recorded)")
+        mine = status.get("host") == socket.gethostname()
+        if status.get("state") == "running" and mine and not _alive(status.get("pid")):
+            status |= {"state": "stale", "message": "its process is gone; resume with --resume"}
+        return status
+
+    def metrics(self) -> list[dict[str, Any]]:
+        try:
+            table = parquet.read_table(self._read(METRICS))
+        except FileNotFoundError:
+            return []
+        except (OSError, pa.ArrowException) as e:
+            raise SmspaceError(f"{self.url}/{METRICS} is unreadable ({type(e).__name__})") from e
+        missing = [f.name for f in METRICS_SCHEMA if f.name not in table.schema.names]
+        if missing:  # written by hand or by another tool: every reader would fail on a KeyError
+            raise SmspaceError(f"{self.url}/{METRICS} is unreadable (no column {', '.join(missing)})")
+        return table.to_pylist()
+
+    def summary(self) -> dict[str, Any]:
+        """One line of `smtrain ls`, the head of `smtrain info`: its state and its last evaluation."""
+        cfg, rows, status = self.config, self.metrics(), self.status()
+        last = rows[-1] if rows else {}
+        return {
+            "run": self.url,
+            "dataset_id": cfg.dataset_id,
+            "state": status["state"],
+            "message": status["message"],
+            "step": last.get("step", 0),
+            "steps": cfg.steps,
+            "n_h": cfg.n_h,
+            "seed": cfg.seed,
+            "eval_loss": last.get("eval_loss"),
+            "d_topo": last.get("d_topo"),
+            "d_metric": last.get("d_metric"),
+            "elapsed_s": last.get("elapsed_s"),
+        }
+
+    def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        table = parquet.read_table(self._read(embedding_file(step), self._embeddings()))
+        return parquet.from_fixed_list(table["h"]), parquet.from_fixed_list(table["p"])
+
+    def predictions(self, step: int) -> np.ndarray:
+        """The normalised s_t1 the network predicted at `step` for the first evaluation transitions."""
+        return _npy(self._read(array_file(PREDICTED, step), self._embeddings()))
+
+    def true_s_t1(self) -> np.ndarray:
+        """The normalised s_t1 those predictions aim at (saved once, at step 0)."""
+        return _npy(self._read(array_file(TRUE, 0), self._embeddings()))
+
+    def check_whole(self, checkpoint: dict[str, Any]) -> None:
+        """Refuse a folder whose config, metrics and checkpoint were written by different runs
+        (two processes writing one folder): continuing it would mix them."""
+        ids = {CONFIG: self.run_id, CHECKPOINT: str(checkpoint.get(RUN_ID) or "")}
+        try:
+            metadata = parquet.read_schema(self._read(METRICS)).metadata or {}
+            ids[METRICS] = metadata.get(RUN_ID.encode(), b"").decode()
+        except FileNotFoundError:
+            pass
+        found = {name: run_id for name, run_id in ids.items() if run_id}  # "": written by an older smspace
+        if len(set(found.values())) > 1:
+            parts = ", ".join(f"{name} of run {run_id[:8]}" for name, run_id in found.items())
+            raise SmspaceError(
+                f"{self.url} holds parts of different runs ({parts}): two processes wrote it; "
+                "train it anew with --overwrite"
+            )
+
+    def checkpoint_step(self) -> int:
+        """The step of the last checkpoint; 0 when there is none yet."""
+        return int(self.load_checkpoint()["step"]) if self.store.exists(CHECKPOINT) else 0
+
+    def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
+        return self._loaded(self._checkpoint_bytes(), f"{self.url}/{CHECKPOINT}", device)
+
+    def _checkpoint_bytes(self) -> bytes:
+        try:
+            data = self._read(CHECKPOINT)
+        except FileNotFoundError:
+            raise SmspaceError(
+                f"{self.url} has no checkpoint to resume from (stopped before its first): "
+                "run the command that created it with --overwrite"
+            ) from None
+        return data
+
+    @staticmethod
+    def _loaded(data: bytes, where: str, device: str) -> dict[str, Any]:
+        try:
+            return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
+        except pickle.UnpicklingError as e:  # weights_only refused an object: never load it another way
+            raise SmspaceError(
+                f"{where} is not a smspace checkpoint (it holds objects other than tensors and plain data); "
+                "it was not loaded"
+            ) from e
+        except Exception as e:
+            raise SmspaceError(f"checkpoint {where} is unreadable ({type(e).__name__}); it was not loaded") from e
+
+
+class RunDir(RunView):
+    """A run folder on this machine or on object storage (any fsspec URL), as the process training
+    it writes it: every file is written whole in one step, the checkpoint last at each evaluation
+    (it is the commit record: resume trims what later evaluations wrote)."""
+
+    def __init__(self, where: Path | str | Store):
+        super().__init__(where)
+        self._lock: HeldLock | None = None
+        # while this process trains the run: the version of each file it last saw or wrote (None:
+        # absent), so that on object storage it writes over its own versions only (lake/store.py)
+        self._versions: dict[str, str | None] | None = None
+        self._lost = False  # another process took the folder over: this one writes nothing more
+        self._last_checkpoint: bytes | None = None  # the bytes this process last wrote or resumed from
+
     def claim(self) -> None:
         """Become the one process training this run; another one gets a clear refusal. Local
         folders have a lock; on object storage every later write of this process is conditional on
         the versions seen here, so a second writer makes one of the two stop in one line."""
         if self._lock is None:
-            self._lock = self.store.hold(LOCK, f"{self.path} is being trained by another process")
+            self._lock = self.store.hold(LOCK, f"{self.url} is being trained by another process")
         if self._versions is None:
             found = dict(self.store.fingerprints("*"))
             for sub in SUBFOLDERS:
@@ -125,13 +280,13 @@ class RunDir:
             folder.put(name, data)
             return
         if self._lost:
-            raise SmspaceError(f"{self.path} is written by another process; this one stopped")
+            raise SmspaceError(f"{self.url} is written by another process; this one stopped")
         try:
             self._versions[key] = folder.replace(name, data, self._versions.get(key))
         except WriteConflict:
             self._lost = True
             raise SmspaceError(
-                f"{self.path}: another process writes this run folder ({key} changed under this one); "
+                f"{self.url}: another process writes this run folder ({key} changed under this one); "
                 "this one stopped and left it to the other"
             ) from None
 
@@ -139,14 +294,6 @@ class RunDir:
         (self.store.child(sub) if sub else self.store).delete(name)
         if self._versions is not None:
             self._versions[f"{sub}/{name}" if sub else name] = None
-
-    @property
-    def run_id(self) -> str:
-        """The id config.json gives this run; every file of the run carries it, so a folder whose
-        parts were written by different runs is told apart ("" for runs of an older smspace)."""
-        if self._run_id is None:
-            self._run_id = self.config.run_id
-        return self._run_id
 
     # -- lifecycle ------------------------------------------------------------------------
     @classmethod
@@ -165,7 +312,7 @@ class RunDir:
         except SmspaceError:
             run.release()
             raise SmspaceError(
-                f"{run.path}: another process created a run there meanwhile; choose another --out"
+                f"{run.url}: another process created a run there meanwhile; choose another --out"
             ) from None
         run._run_id = cfg.run_id
         return run
@@ -175,15 +322,15 @@ class RunDir:
         """The folder a new run may be created in (checked, nothing written)."""
         run = cls(where)
         if run.store.is_file():
-            raise SmspaceError(f"output {run.path} is a file, not a folder")
+            raise SmspaceError(f"output {run.url} is a file, not a folder")
         if run.store.exists(CONFIG) and not overwrite:
             if not run.store.exists(CHECKPOINT):
                 raise SmspaceError(
-                    f"{run.path} holds a run stopped before its first checkpoint: pass --overwrite to start it again"
+                    f"{run.url} holds a run stopped before its first checkpoint: pass --overwrite to start it again"
                 )
-            raise SmspaceError(f"{run.path} already holds a run: pass --resume to continue it or --overwrite")
+            raise SmspaceError(f"{run.url} already holds a run: pass --resume to continue it or --overwrite")
         if not overwrite and any(name != LOCK for name in run.store.entries()):
-            raise SmspaceError(f"{run.path} is not empty and holds no run; choose another --out")
+            raise SmspaceError(f"{run.url} is not empty and holds no run; choose another --out")
         return run
 
     def write_config(self, cfg: TrainConfig) -> None:
@@ -197,17 +344,6 @@ class RunDir:
         done = {"compile": decided} if decided is not None else {}
         self.write_config(replace(cfg, sessions=[*cfg.sessions, provenance.session(device, threads, **done)]))
 
-    @classmethod
-    def open(cls, where: Path | str | Store) -> RunDir:
-        run = cls(where)
-        try:
-            found = run.store.exists(CONFIG)
-        except NotADirectoryError:
-            found = False
-        if not found:
-            raise SmspaceError(f"{run.path} is not a run folder (no {CONFIG})")
-        return run
-
     def _clear(self) -> None:
         for name in (CONFIG, METRICS, CHECKPOINT, PREVIOUS, STATUS):
             self._delete(name)
@@ -217,28 +353,6 @@ class RunDir:
                 self._delete(name, sub=sub)
             folder.remove_folder()
         self.store.remove_partials()
-
-    def _read(self, name: str, store: Store | None = None) -> bytes:
-        return (store or self.store).read_bytes(name)
-
-    @property
-    def config(self) -> TrainConfig:
-        try:
-            return TrainConfig.from_dict(json.loads(self._read(CONFIG)))
-        except FileNotFoundError:
-            raise SmspaceError(f"{self.path} is not a run folder (no {CONFIG})") from None
-        except (json.JSONDecodeError, UnicodeDecodeError, TypeError, AttributeError) as e:
-            raise SmspaceError(f"{self.path}/{CONFIG} is unreadable ({type(e).__name__})") from e
-        except SmspaceError as e:  # a value no flag would take (a NaN lr_start): name the file
-            raise SmspaceError(f"{self.path}/{CONFIG} holds a config no run could have: {e}") from e
-
-    def recorded_keys(self) -> set[str]:
-        """The config fields config.json holds (an older smspace recorded fewer)."""
-        try:
-            raw = json.loads(self._read(CONFIG))
-        except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
-            return set()
-        return set(raw) if isinstance(raw, dict) else set()
 
     # -- status ---------------------------------------------------------------------------
     def set_status(self, state: str, step: int, message: str = "") -> None:
@@ -250,35 +364,7 @@ class RunDir:
             status |= {"pid": os.getpid(), "host": socket.gethostname()}
         self._write(STATUS, json.dumps(status).encode())
 
-    def status(self) -> dict[str, Any]:
-        """The recorded state; "running" becomes "stale" when its process is gone from this host."""
-        try:
-            status = json.loads(self._read(STATUS))
-        except FileNotFoundError:
-            return {"state": "created", "step": 0, "message": ""}
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise SmspaceError(f"{self.path}/{STATUS} is unreadable ({type(e).__name__})") from e
-        fields = {"state": str, "step": int, "message": str}
-        if not isinstance(status, dict) or not all(isinstance(status.get(k), t) for k, t in fields.items()):
-            raise SmspaceError(f"{self.path}/{STATUS} is unreadable (state, step and message must be recorded)")
-        mine = status.get("host") == socket.gethostname()
-        if status.get("state") == "running" and mine and not _alive(status.get("pid")):
-            status |= {"state": "stale", "message": "its process is gone; resume with --resume"}
-        return status
-
     # -- metrics and embeddings -------------------------------------------------------------
-    def metrics(self) -> list[dict[str, Any]]:
-        try:
-            table = parquet.read_table(self._read(METRICS))
-        except FileNotFoundError:
-            return []
-        except (OSError, pa.ArrowException) as e:
-            raise SmspaceError(f"{self.path}/{METRICS} is unreadable ({type(e).__name__})") from e
-        missing = [f.name for f in METRICS_SCHEMA if f.name not in table.schema.names]
-        if missing:  # written by hand or by another tool: every reader would fail on a KeyError
-            raise SmspaceError(f"{self.path}/{METRICS} is unreadable (no column {', '.join(missing)})")
-        return table.to_pylist()
-
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
         table = pa.Table.from_pylist(rows, schema=METRICS_SCHEMA).replace_schema_metadata({RUN_ID: self.run_id})
         self._write(METRICS, parquet.table_bytes(table))
@@ -326,18 +412,6 @@ class RunDir:
         self.save_checkpoint(checkpoint, keep_previous)
         self.set_status("running", step)
 
-    def embeddings(self, step: int) -> tuple[np.ndarray, np.ndarray]:
-        table = parquet.read_table(self._read(embedding_file(step), self._embeddings()))
-        return parquet.from_fixed_list(table["h"]), parquet.from_fixed_list(table["p"])
-
-    def predictions(self, step: int) -> np.ndarray:
-        """The normalised s_t1 the network predicted at `step` for the first evaluation transitions."""
-        return _npy(self._read(array_file(PREDICTED, step), self._embeddings()))
-
-    def true_s_t1(self) -> np.ndarray:
-        """The normalised s_t1 those predictions aim at (saved once, at step 0)."""
-        return _npy(self._read(array_file(TRUE, 0), self._embeddings()))
-
     def truncate_after(self, step: int) -> None:
         """Drop what evaluations after `step` wrote, and whatever killed writers left half-done."""
         self.store.remove_partials()
@@ -354,6 +428,11 @@ class RunDir:
                 self._delete(name, sub=tensorboard.FOLDER)
 
     # -- checkpoints --------------------------------------------------------------------------
+    def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
+        data = self._checkpoint_bytes()
+        self._last_checkpoint = data  # what keep_previous keeps when the next checkpoint replaces it
+        return self._loaded(data, f"{self.url}/{CHECKPOINT}", device)
+
     def save_checkpoint(self, state: dict[str, Any], keep_previous: bool = False) -> None:
         """The new commit record; `keep_previous`: the one it replaces is kept beside it first, so
         that a member of an ensemble that a kill left one evaluation ahead of the others can be
@@ -371,51 +450,7 @@ class RunDir:
         data = self._read(PREVIOUS)
         self._write(CHECKPOINT, data)
         self._last_checkpoint = data
-        return self._loaded(data, f"{self.path}/{PREVIOUS}", device)
-
-    def check_whole(self, checkpoint: dict[str, Any]) -> None:
-        """Refuse a folder whose config, metrics and checkpoint were written by different runs
-        (two processes writing one folder): continuing it would mix them."""
-        ids = {CONFIG: self.run_id, CHECKPOINT: str(checkpoint.get(RUN_ID) or "")}
-        try:
-            metadata = parquet.read_schema(self._read(METRICS)).metadata or {}
-            ids[METRICS] = metadata.get(RUN_ID.encode(), b"").decode()
-        except FileNotFoundError:
-            pass
-        found = {name: run_id for name, run_id in ids.items() if run_id}  # "": written by an older smspace
-        if len(set(found.values())) > 1:
-            parts = ", ".join(f"{name} of run {run_id[:8]}" for name, run_id in found.items())
-            raise SmspaceError(
-                f"{self.path} holds parts of different runs ({parts}): two processes wrote it; "
-                "train it anew with --overwrite"
-            )
-
-    def checkpoint_step(self) -> int:
-        """The step of the last checkpoint; 0 when there is none yet."""
-        return int(self.load_checkpoint()["step"]) if self.store.exists(CHECKPOINT) else 0
-
-    def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
-        try:
-            data = self._read(CHECKPOINT)
-        except FileNotFoundError:
-            raise SmspaceError(
-                f"{self.path} has no checkpoint to resume from (stopped before its first): "
-                "run the command that created it with --overwrite"
-            ) from None
-        self._last_checkpoint = data
-        return self._loaded(data, f"{self.path}/{CHECKPOINT}", device)
-
-    @staticmethod
-    def _loaded(data: bytes, where: str, device: str) -> dict[str, Any]:
-        try:
-            return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
-        except pickle.UnpicklingError as e:  # weights_only refused an object: never load it another way
-            raise SmspaceError(
-                f"{where} is not a smspace checkpoint (it holds objects other than tensors and plain data); "
-                "it was not loaded"
-            ) from e
-        except Exception as e:
-            raise SmspaceError(f"checkpoint {where} is unreadable ({type(e).__name__}); it was not loaded") from e
+        return self._loaded(data, f"{self.url}/{PREVIOUS}", device)
 
 
 def _config_bytes(cfg: TrainConfig) -> bytes:

@@ -11,14 +11,8 @@ from smspace.common.rerun_output import ViewOutput, recording
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
 from smspace.metrics import affine_projection
-from smspace.train.run_dir import RunDir
-
-
-def position_colours(p: np.ndarray) -> np.ndarray:
-    """p mapped to RGB: x → red, y → green, so neighbours in space share a colour."""
-    lo, hi = p.min(0), p.max(0)
-    t = (p - lo) / np.where(hi > lo, hi - lo, 1.0)
-    return np.round(255 * np.c_[t[:, 0], t[:, 1], 1 - 0.5 * (t[:, 0] + t[:, 1])]).astype(np.uint8)
+from smspace.train.colours import position_colours_u8
+from smspace.train.run_dir import RunView
 
 
 def tile(frames: np.ndarray, columns: int = 4) -> np.ndarray:
@@ -59,7 +53,7 @@ def blueprint(images: bool):
     )
 
 
-def view_run(run: RunDir, output: ViewOutput) -> int:
+def view_run(run: RunView, output: ViewOutput) -> int:
     import rerun as rr
 
     cfg = run.config
@@ -75,7 +69,7 @@ def view_run(run: RunDir, output: ViewOutput) -> int:
         times = [rr.TimeColumn("step", sequence=steps)]
         text = f"# {run.name}\n\n```json\n{json.dumps(cfg.to_dict(), indent=1)}\n```\n"
         rec.log("run", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
-        colours = position_colours(p)
+        colours = position_colours_u8(p)
         h3 = np.stack([np.pad(h[:, :3], ((0, 0), (0, max(0, 3 - h.shape[1])))) for h, _ in embeddings])
         per_step = {"colors": np.tile(colours, (len(steps), 1))}  # one colour per point, every step
         rec.send_columns(
@@ -111,7 +105,7 @@ def view_run(run: RunDir, output: ViewOutput) -> int:
     return len(steps)
 
 
-def _log_predictions(rec, run: RunDir, steps: np.ndarray, times, manifest, shape) -> None:
+def _log_predictions(rec, run: RunView, steps: np.ndarray, times, manifest, shape) -> None:
     import rerun as rr
 
     true = run.true_s_t1()

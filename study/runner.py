@@ -113,15 +113,15 @@ def run_study(
     out.make()
     out.put(SOURCE, source)
     out.put(RECORD, (json.dumps(study.to_dict(), indent=1) + "\n").encode())
-    runs, chunks = [], []
+    runs, ensembles_todo = [], []
     for combo, (template, _) in zip(combos, checked, strict=True):
         got, todo = prepare(
             combo.plan, lake, combo.out, gen_workers, max_ensemble, overwrite, workers, notify, checked=template
         )
         runs += got
-        chunks += todo
+        ensembles_todo += todo
     first = combos[0].plan.template
-    run_ensembles(chunks, executor, workers, first.threads, first.device)
+    run_ensembles(ensembles_todo, executor, workers, first.threads, first.device)
     return runs
 
 
