@@ -259,7 +259,7 @@ def _file_entry(entry: Any, names: re.Pattern | str) -> str | None:
         return f"file entry {name!r} is not a file name this format uses"
     if not (_int(entry.get("bytes"), 0, MAX_FILE_BYTES) and _hex(entry.get("sha256"), 64)):
         return f"{name}: bytes or sha256 missing or malformed"
-    if "md5" in entry and not _hex(entry["md5"], 32):  # recorded since 0.2; older manifests lack it
+    if "md5" in entry and not _hex(entry["md5"], 32):  # optional: manifests written before md5s lack it
         return f"{name}: md5 malformed"
     return None
 

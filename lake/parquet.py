@@ -6,9 +6,9 @@ reference to a reader may be dropped there after Python began to shut down. When
 buffer belongs to Python (bytes wrapped by `pa.BufferReader`), freeing it takes the GIL; a
 finalizing interpreter answers that by ending the thread, `pthread_exit` unwinds through a noexcept
 C++ destructor, and the process aborts: "terminate called without an active exception", exit 134
-(4 exits in 20 of `smspace.open_run(R).metrics()`; seen in gdb: arrow::py::PyBuffer::~PyBuffer in
-an arrow ThreadPool worker, under PyGILState_Ensure). So the bytes are first copied into memory
-Arrow owns (these files are small), and read without pre-buffering or threads."""
+(arrow::py::PyBuffer::~PyBuffer in an arrow ThreadPool worker, under PyGILState_Ensure). So the
+bytes are first copied into memory Arrow owns (these files are small), and read without
+pre-buffering or threads (tests/test_exit.py repeats the read that aborted)."""
 
 from __future__ import annotations
 

@@ -647,7 +647,8 @@ def s3_options() -> dict[str, Any]:
     retries = {"total_max_attempts": attempts, "mode": "standard"}
     config = {"connect_timeout": connect, "read_timeout": read, "retries": retries}
     # botocore's default streams a trailing checksum with every upload, which makes the body a file
-    # and adds `Expect: 100-continue`, whose wait no time limit covers (a frozen endpoint hung every
-    # PUT for good); each PUT carries its Content-MD5 instead (RemoteStore._put), checked by the server
+    # and adds `Expect: 100-continue`, whose wait no time limit covers (against a frozen endpoint a
+    # PUT would wait for ever); each PUT carries its Content-MD5 instead (RemoteStore._put), checked
+    # by the server
     config["request_checksum_calculation"] = "when_required"
     return {"config_kwargs": config}

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import click
 
 from smspace.common.completion import complete_devices
-from smspace.train.config import LAYER_BOUNDS, PRECISIONS, flag_name, layers_within_bounds
+from smspace.train.config import LAYER_BOUNDS, PRECISIONS, flag_name, layers_within_bounds, model_names
 
 if TYPE_CHECKING:
     from smspace.train.config import TrainConfig
@@ -51,12 +51,6 @@ def _no_duplicate_keys(pairs: list[tuple[str, object]]) -> dict:
     if twice:
         raise ValueError(f"{', '.join(map(repr, twice))} given twice")
     return dict(pairs)
-
-
-def model_choices() -> tuple[str, ...]:
-    from smspace.train.config import model_names
-
-    return model_names()
 
 
 class PositiveFinite(click.ParamType):
@@ -101,7 +95,7 @@ def config_options(exclude: tuple[str, ...] = ()) -> Callable:
                 )  # fmt: skip
             elif f.name == "model":
                 option = click.option(
-                    flag_name(f), f.name, type=click.Choice(model_choices()), default=default, show_default=True,
+                    flag_name(f), f.name, type=click.Choice(model_names()), default=default, show_default=True,
                     help=help_text,
                 )  # fmt: skip
             else:
