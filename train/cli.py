@@ -101,49 +101,79 @@ def report(runs, out) -> None:
         click.echo(str(path))
 
 
-def _listed(path: Path) -> dict:
-    """A run's summary, or a "broken" row saying why it cannot be read: one bad run hides no other."""
+def _listed(folder, name: str) -> dict:
+    """A run's summary, or a "broken" row saying why it cannot be read: one bad run hides no other.
+    `name`: where the run lies under the listed folder (sub-study/run for a study's runs)."""
     from smspace.lake.store import StorageUnreachable
     from smspace.train.run_dir import RunView
 
+    path = folder.child(name) if "/" not in name else _descend(folder, name)
     try:
-        return RunView.open(path).summary()
+        summary = RunView.open(path).summary()
     except StorageUnreachable:
         raise  # a frozen endpoint ends the listing, not one "broken" row per run
     except SmspaceError as e:
-        empty = dict.fromkeys(("dataset_id", "n_h", "seed", "eval_loss", "d_topo", "d_metric", "elapsed_s"))
+        empty = dict.fromkeys(("dataset_id", "n_h", "seed", "eval_loss", "d_topo", "d_metric", "elapsed_s", "model",
+                               "model_params", "precision"))  # fmt: skip
         where = display_name(str(getattr(path, "url", path)))
-        return {"run": where, "state": "broken", "message": str(e), "step": 0, "steps": 0} | empty
+        summary = {"run": where, "state": "broken", "message": str(e), "step": 0, "steps": 0} | empty
+    study = name.rsplit("/", 1)[0] if "/" in name else ""
+    return {"name": display_name(name), "study": display_name(study)} | summary
 
 
-def _leaf(where: str) -> str:
-    """The last name of a path or URL."""
-    return where.rstrip("/").rsplit("/", 1)[-1]
+def _descend(folder, name: str):
+    for part in name.split("/"):
+        folder = folder.child(part)
+    return folder
+
+
+DEPTH = 3  # runs/<run>, runs/<sweep or study>/<run>, runs/<study>/<combination>/<run>
+
+
+def _run_names(folder) -> list[str]:
+    """Every run folder under `folder`, as its path below it: direct ones, and those of the sweeps,
+    studies and grid combinations it holds (as `smtrain report` finds them)."""
+    from smspace.train.run_dir import CONFIG
+
+    names: set[str] = set()
+    for depth in range(1, DEPTH + 1):
+        found = {path.rsplit("/", 1)[0] for path in folder.list("*/" * depth + CONFIG)}
+        names |= {n for n in found if not any(n.startswith(run + "/") for run in names)}  # not inside a run
+    return sorted(names, key=lambda n: (n.count("/") > 0, n.rsplit("/", 1)[0] if "/" in n else "", n))
+
+
+def _network(summary: dict) -> str:
+    params = summary.get("model_params") or {}
+    shown = "(" + ",".join(f"{k}={v}" for k, v in sorted(params.items())) + ")" if params else ""
+    return f"{summary.get('model') or '-'}{shown} {summary.get('precision') or ''}".strip()
 
 
 @main.command("ls")
-@click.option("--runs", default=RUNS, show_default=True, help="A folder (or fsspec URL) of run folders.")
+@click.option(
+    "--runs", default=RUNS, show_default=True, help="A folder (or fsspec URL) of run folders, sweeps and studies."
+)
 @click.option("--json", "as_json", is_flag=True)
 @friendly_errors
 def ls_(runs, as_json) -> None:
-    """List the runs under a folder."""
-    from smspace.train.run_dir import CONFIG
+    """List the runs under a folder: its own, and those of the sweeps, studies and grid
+    combinations in it (grouped by where they lie)."""
+    from smspace.lake.store import open_store
 
     def fmt(v) -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
 
-    from smspace.lake.store import open_store
-
     folder = open_store(runs)
     if not folder.is_folder():  # a mistyped name must not look like a folder without runs
         raise SmspaceError(f"no run folders at {folder} (--runs names the folder holding them)")
+    rows = [_listed(folder, name) for name in _run_names(folder)]
+    width = max([40, *(len(r["name"]) for r in rows)])
     echo_listing(
-        [_listed(folder.child(path.split("/")[0])) for path in folder.list(f"*/{CONFIG}")],
+        rows,
         as_json,
-        f"{'run':<40} {'state':<11} {'step':>13} {'loss':>10} {'D_topo':>10} {'D_metric':>10}",
+        f"{'run':<{width}} {'state':<11} {'step':>13} {'loss':>10} {'D_topo':>10} {'D_metric':>10}  network",
         lambda s: (
-            f"{display_name(_leaf(s['run'])):<40} {s['state']:<11} {s['step']:>6}/{s['steps']:<6} "
-            f"{fmt(s['eval_loss']):>10} {fmt(s['d_topo']):>10} {fmt(s['d_metric']):>10}"
+            f"{s['name']:<{width}} {s['state']:<11} {s['step']:>6}/{s['steps']:<6} "
+            f"{fmt(s['eval_loss']):>10} {fmt(s['d_topo']):>10} {fmt(s['d_metric']):>10}  {_network(s)}"
         ),
     )
 

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,19 +61,47 @@ class Study:
 
     @property
     def label(self) -> str:
-        """What the study is, for titles: setup, N_h, worlds, steps."""
+        """What the study is, for titles: setup, N_h, the network and its precision, worlds, steps."""
         first = self.runs[0]
         worlds = len({r.identity[0].rsplit("-", 1)[0] for r in self.runs})
-        return f"{first.setup}, N_h = {first.n_h}, {worlds} world(s), {first.terms.get('steps', '?')} steps"
+        return (
+            f"{first.setup}, N_h = {first.n_h}, {worlds} world(s), {first.terms.get('steps', '?')} steps; "
+            f"{network_label(first.terms)}"
+        )
+
+    @property
+    def file_stem(self) -> str:
+        """The study's name as a file name any Markdown viewer links to (no spaces, quotes or braces)."""
+        return safe_name(self.name)
+
+    def value(self, variable: str) -> Any:
+        """The value of a grid variable (a term) in this study."""
+        return self.runs[0].terms.get(variable)
 
 
-def load_runs(paths: list[Path]) -> list[RunData]:
-    runs, seen = [], {}
+def network_label(terms: dict[str, Any]) -> str:
+    """The network a run trains and how: model, its parameters, precision (fp32 unless recorded)."""
+    params = terms.get("model_params") or {}
+    shown = f" ({', '.join(f'{k}={v}' for k, v in sorted(params.items()))})" if params else ""
+    return f"{terms.get('model', 'sensorimotor')}{shown}, {terms.get('precision', 'fp32')}"
+
+
+def safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._=-]+", "_", name).strip("_") or "study"
+
+
+def load_runs(paths: list[Path], left_out: list[str] | None = None) -> list[RunData]:
+    """The runs to report; a run with no evaluation (failed or stopped before its first) is left
+    out and named in `left_out`, so one bad run hides none of the others."""
+    runs, seen, skipped = [], {}, []
     for path in paths:
         run = RunView.open(path)
         rows = run.metrics()
         if not rows:
-            raise SmspaceError(f"{path} has no evaluations yet")
+            status = run.status()
+            why = f"{status['state']}: {status['message']}" if status.get("message") else status["state"]
+            skipped.append(f"{path} has no evaluations yet ({why})")
+            continue
         cfg = run.config
         if cfg.mode and cfg.setup:
             mode, setup = cfg.mode, cfg.setup
@@ -96,12 +126,18 @@ def load_runs(paths: list[Path]) -> list[RunData]:
             )
         seen[(data.identity, json.dumps(data.terms, sort_keys=True))] = path
         runs.append(data)
+    if not runs:
+        raise SmspaceError(skipped[0] if len(skipped) == 1 else f"no run has evaluations yet: {'; '.join(skipped)}")
+    if left_out is not None:
+        left_out += skipped
     return runs
 
 
 def _shown(value: Any) -> str:
     if isinstance(value, list):
         return "x".join(map(str, value))
+    if isinstance(value, dict):
+        return ",".join(f"{k}={_shown(v)}" for k, v in sorted(value.items())) or "{}"
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
@@ -112,18 +148,35 @@ def by_study(runs: list[RunData]) -> list[Study]:
     for r in runs:
         groups[json.dumps(r.terms, sort_keys=True, default=str)].append(r)
     members = list(groups.values())
+    variables = independent([g[0].terms for g in members])
     studies = []
     for group in members:
         first = group[0]
-        differs = sorted({k for other in members if other is not group for k in differing(first.terms, other[0].terms)})
+        differs = [k for k in variables if any(first.terms.get(k) != other[0].terms.get(k) for other in members)]
         name = f"{first.setup}-nh{first.n_h}"
         kin = [g for g in members if (g[0].setup, g[0].n_h) == (first.setup, first.n_h)]
         if len(kin) > 1:  # the same setup and N_h: the name says what else differs
-            within = sorted({k for other in kin if other is not group for k in differing(first.terms, other[0].terms)})
+            within = [k for k in differs if any(first.terms.get(k) != g[0].terms.get(k) for g in kin)]
             name += "".join(f"-{k}{_shown(first.terms.get(k))}" for k in within if k not in ("setup", "n_h"))
         common = set.intersection(*({int(row["step"]) for row in r.rows} for r in group))
         studies.append(Study(name, group, sorted(common), differs))
     return sorted(studies, key=lambda st: st.name)
+
+
+FIRST = ("setup", "model", "n_h")  # the variables a reader names a combination by, in this order
+
+
+def independent(terms: list[dict[str, Any]]) -> list[str]:
+    """The terms that tell studies apart, less those setup, model or N_h already imply (a setup's
+    own encoder layers, a model's plugin record): what a reader would name a combination by."""
+    keys = sorted({k for a in terms for b in terms for k in differing(a, b)})
+    named = [k for k in FIRST if k in keys]
+
+    def parts(names: list[str]) -> int:
+        return len({json.dumps([t.get(k) for k in names], sort_keys=True, default=str) for t in terms})
+
+    implied = {k for k in keys if k not in FIRST and named and parts([*named, k]) == parts(named)}
+    return [k for k in keys if k not in implied]
 
 
 def by_mode(runs: list[RunData]) -> dict[str, list[RunData]]:
@@ -136,7 +189,7 @@ def by_mode(runs: list[RunData]) -> dict[str, list[RunData]]:
 
 POSITION_UNITS = {"grid": "cells", "grid6": "cells", "arm": "m", "arm6": "m"}  # docs/MODEL.md §2
 AXIS_LABELS = {
-    "eval_loss": "evaluation loss (MSE on normalised s)",
+    "eval_loss": "evaluation loss (summed squared error)",
     "d_topo": "D_topo (lower: topology kept)",
     "d_metric": "D_metric (lower: metric kept)",
 }
@@ -182,6 +235,60 @@ def curves_figure(study: Study, path: Path) -> None:
     plt.close(fig)
 
 
+def comparison_variables(studies: list[Study]) -> list[str]:
+    """The terms some reported studies differ in: each gets a figure comparing them."""
+    return sorted({k for st in studies for k in st.differs})
+
+
+def comparison_figure(studies: list[Study], variable: str, path: Path) -> None:
+    """Each metric at the last step against one grid variable: a line per mode (and per value of
+    the other variables, told apart by marker), the mean over worlds with its std as error bars."""
+    import matplotlib.pyplot as plt
+
+    values = sorted({json.dumps(st.value(variable), sort_keys=True) for st in studies})
+    parsed = [json.loads(v) for v in values]
+    numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in parsed)
+    if numeric:
+        parsed.sort()
+        values = [json.dumps(v) for v in parsed]
+    others = [k for k in comparison_variables(studies) if k != variable]
+    lines: dict[tuple[str, str], list[tuple[float, float, float]]] = defaultdict(list)
+    for st in studies:
+        rest = ", ".join(f"{k}={_shown(st.value(k))}" for k in others)
+        x = st.value(variable) if numeric else values.index(json.dumps(st.value(variable), sort_keys=True))
+        for mode, runs in by_mode(st.runs).items():
+            finals = np.array([[r.values(k, [st.final_step])[0] for k, _ in METRICS] for r in runs])
+            lines[(mode, rest)].append((float(x), *[(finals[:, i].mean(), finals[:, i].std()) for i in range(3)]))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8))
+    markers, rests = "osD^vP*X", sorted({rest for _, rest in lines})
+    for i, (ax, (key, label)) in enumerate(zip(axes, METRICS, strict=True)):
+        for (mode, rest), points in sorted(lines.items()):
+            points.sort()
+            xs = [pt[0] for pt in points]
+            means, stds = [pt[1 + i][0] for pt in points], [pt[1 + i][1] for pt in points]
+            name = f"{mode}, {rest}" if rest else mode
+            ax.errorbar(xs, means, yerr=stds, color=MODE_COLOURS.get(mode, "tab:gray"), capsize=3,
+                        marker=markers[rests.index(rest) % len(markers)], label=name)  # fmt: skip
+        if numeric and min(parsed) > 0 and max(parsed) / min(parsed) >= 100:
+            ax.set_xscale("log")
+        if numeric and all(isinstance(v, int) for v in parsed):
+            ax.set_xticks(parsed)
+        if not numeric:
+            ax.set_xticks(range(len(values)), [_shown(v)[:28] for v in parsed], rotation=20, ha="right", fontsize=8)
+        if key != "d_metric":
+            ax.set_yscale("log")
+        ax.set_xlabel(variable)
+        ax.set_ylabel(AXIS_LABELS[key])
+        ax.set_title(f"{label} at the last step")
+        ax.grid(alpha=0.3, which="both")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), frameon=False, fontsize=9)
+    fig.suptitle(f"the studies against {variable}: mean over worlds ± std", fontsize=13)
+    fig.tight_layout(rect=(0, 0.1 + 0.04 * (len(labels) // 4), 1, 0.95))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def projection_figure(run: RunData, step: int, path: Path) -> None:
     """Motor space, h and p with ĥ, every point coloured by its position p; and the predicted s_t1
     against the true one (image mosaics for a camera)."""
@@ -196,19 +303,28 @@ def projection_figure(run: RunData, step: int, path: Path) -> None:
     fig = plt.figure(figsize=(21, 5.6))
     dataset = _dataset(run)
     ax = fig.add_subplot(1, 4, 1, projection="3d")
+    motors = ""
     if dataset is not None:
         m_norm, _ = normalisers(dataset.manifest)
-        m = m_norm(dataset.regular_sampling()[0])
-        ax.scatter(*np.pad(m[:, :3], ((0, 0), (0, max(0, 3 - m.shape[1])))).T, s=10, c=colours)
-        _axis_labels(ax, ["m1", "m2", "m3"], "(normalised)")
+        m3, motors = first_three(m_norm(dataset.regular_sampling()[0]))  # 4 or 6 motors: their PCA
+        ax.scatter(*m3.T, s=10, c=colours)
+        _axis_labels(ax, ["PC1", "PC2", "PC3"] if motors else ["m1", "m2", "m3"], "(normalised)")
     else:
         ax.text2D(0.1, 0.5, "dataset not available here", transform=ax.transAxes)
-    ax.set_title("motor space: regular sampling")
-    ax = fig.add_subplot(1, 4, 2, projection="3d")
-    h3, shown = first_three(h)
-    ax.scatter(*h3.T, s=10, c=colours)
-    _axis_labels(ax, ["PC1", "PC2", "PC3"] if shown else ["h1", "h2", "h3"], "")
-    ax.set_title(f"encoding space h{shown}\nD_topo = {last['d_topo']:.2e}")
+    ax.set_title(f"motor space: regular sampling{motors}")
+    if h.shape[1] <= 2:  # N_h = 2 (or 1) is drawn flat: a third axis would be empty
+        ax = fig.add_subplot(1, 4, 2)
+        h2 = np.pad(h, ((0, 0), (0, 2 - h.shape[1])))
+        ax.scatter(h2[:, 0], h2[:, 1], s=10, c=colours)
+        ax.set_xlabel("h1")
+        ax.set_ylabel("h2" if h.shape[1] == 2 else "(N_h = 1)")
+        ax.set_title(f"encoding space h\nD_topo = {last['d_topo']:.2e}")
+    else:
+        ax = fig.add_subplot(1, 4, 2, projection="3d")
+        h3, shown = first_three(h)
+        ax.scatter(*h3.T, s=10, c=colours)
+        _axis_labels(ax, ["PC1", "PC2", "PC3"] if shown else ["h1", "h2", "h3"], "")
+        ax.set_title(f"encoding space h{shown}\nD_topo = {last['d_topo']:.2e}")
     ax = fig.add_subplot(1, 4, 3)
     for a, b in zip(p, h_hat, strict=True):
         ax.plot([a[0], b[0]], [a[1], b[1]], color="0.6", linewidth=0.5)
@@ -227,7 +343,7 @@ def projection_figure(run: RunData, step: int, path: Path) -> None:
         _prediction_scatter(fig.add_subplot(1, 4, 4), true, pred)
     fig.axes[-1].set_title(f"s_t1, predicted against true\nevaluation loss = {last['eval_loss']:.3g}")
     fig.suptitle(
-        f"{run.name} at step {step} ({run.setup}, N_h = {run.n_h}, {run.mode}): "
+        f"{run.name} at step {step} ({run.setup}, N_h = {run.n_h}, {network_label(run.terms)}, {run.mode}): "
         "every point coloured by its position p (red grows with p_x, blue with p_y)",
         fontsize=12,
     )
@@ -303,12 +419,24 @@ def first_three(h: np.ndarray) -> tuple[np.ndarray, str]:
     return centred @ vt[:3].T, f" (PCA to 3 of {h.shape[1]} dims, {kept:.0%} of variance)"
 
 
-def final_table(study: Study) -> list[dict[str, Any]]:
-    """Mean ± std per mode at the last step every run of the study reached."""
+def grid_variables(studies: list[Study]) -> list[str]:
+    """The terms the reported studies differ in (a grid's variables), beyond setup and N_h, which
+    every table shows anyway."""
+    return sorted({k for st in studies for k in st.differs} - {"setup", "n_h"})
+
+
+def cell(value: Any) -> Any:
+    """A term as one table cell: numbers and strings as they are, lists and objects as JSON."""
+    return json.dumps(value, sort_keys=True) if isinstance(value, list | dict) else value
+
+
+def final_table(study: Study, variables: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """Mean ± std per mode at the last step every run of the study reached, with the study's value
+    of each grid variable."""
     table = []
     for mode, runs in by_mode(study.runs).items():
         row: dict[str, Any] = {"study": study.name, "setup": runs[0].setup, "n_h": runs[0].n_h, "mode": mode}
-        row |= {"runs": len(runs), "step": study.final_step}
+        row |= {"runs": len(runs), "step": study.final_step} | {v: cell(study.value(v)) for v in variables}
         for key, _ in METRICS:
             values = np.array([r.values(key, [study.final_step])[0] for r in runs])
             row[f"{key}_mean"], row[f"{key}_std"] = float(values.mean()), float(values.std())
@@ -321,27 +449,36 @@ def _mean_std(mean: float, std: float, runs: int) -> str:
     return f"{mean:.3g}" if runs == 1 else f"{mean:.3g} ± {std:.2g}"
 
 
-def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path) -> None:
+def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path, variables: Sequence[str] = ()) -> None:
     with open(out / "final.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(table[0]))
         writer.writeheader()
         writer.writerows(table)
     with open(out / "runs.csv", "w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow(["run", "study", "setup", "n_h", "mode", "step", "eval_loss", "d_topo", "d_metric"])
+        writer.writerow(["run", "path", "study", "setup", "n_h", *variables, "mode", "step",
+                         "eval_loss", "d_topo", "d_metric"])  # fmt: skip
         for study in studies:
+            grid = [cell(study.value(v)) for v in variables]
             for r in study.runs:
                 at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
-                writer.writerow([r.name, study.name, r.setup, r.n_h, r.mode, study.final_step, *at])
+                writer.writerow([r.name, r.run.url, study.name, r.setup, r.n_h, *grid, r.mode, study.final_step, *at])
+    extra = "".join(f" {v} |" for v in variables)
     lines = [
-        "| study | setup | N_h | mode | runs | step | loss | D_topo | D_metric |",
-        "|---|---|---|---|---|---|---|---|---|",
+        f"| study | setup | N_h | mode | runs | step |{extra} loss | D_topo | D_metric |",
+        "|---|---|---|---|---|---|" + "---|" * len(variables) + "---|---|---|",
     ]
     for row in table:
         cells = [_mean_std(row[f"{k}_mean"], row[f"{k}_std"], row["runs"]) for k, _ in METRICS]
         head = f"| {row['study']} | {row['setup']} | {row['n_h']} | {row['mode']} | {row['runs']} | {row['step']} | "
+        head += "".join(f"{_md(row[v])} | " for v in variables)
         lines.append(head + " | ".join(cells) + " |")
     (out / "final.md").write_text("\n".join(lines) + "\n")
+
+
+def _md(value: Any) -> str:
+    """A value inside a Markdown table cell: a pipe would end the cell."""
+    return str(value).replace("|", "\\|")
 
 
 def notices(studies: list[Study]) -> list[str]:
@@ -408,13 +545,27 @@ def made_with(runs: list[RunData]) -> list[str]:
     return lines
 
 
-def markdown_report(studies: list[Study], table: list[dict[str, Any]], figures: dict[str, list[Path]],
-                    notes: list[str], out: Path) -> Path:  # fmt: skip
-    """report.md: one page per report, the tables and the figures of every study."""
+def markdown_report(
+    studies: list[Study],
+    table: list[dict[str, Any]],
+    figures: dict[str, list[Path]],
+    notes: list[str],
+    out: Path,
+    compared: Sequence[Path] = (),
+    variables: Sequence[str] = (),
+) -> Path:
+    """report.md: one page per report, the comparison of the studies, then the tables and the
+    figures of every study. Image links are plain file names (train/report.py, safe_name)."""
     lines = ["# smspace report", ""]
     runs = sum(len(st.runs) for st in studies)
     lines += [f"{runs} run(s) in {len(studies)} study(ies), drawn by `smtrain report`.", ""]
     lines += [f"> {note.removeprefix('report: ')}" for note in notes] + ([""] if notes else [])
+    if compared:
+        lines += ["## The studies compared", ""]
+        if variables:
+            lines += [f"Grid variables (columns of final.csv and runs.csv): {', '.join(variables)}.", ""]
+        for figure in compared:
+            lines += [f"![{figure.stem}]({figure.name})", ""]
     for study in studies:
         lines += [f"## {study.name}: {study.label}", ""]
         lines += ["| mode | runs | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|"]
@@ -434,21 +585,33 @@ def markdown_report(studies: list[Study], table: list[dict[str, Any]], figures: 
     return path
 
 
+RECORD = ".smspace-report.json"  # the files the last report wrote here: replaced, never left stale
+
+
 def report(paths: list[Path], out: Path) -> tuple[list[Path], list[str]]:
     """The figures and tables of the runs (given as run folders or study folders), the one-page
-    report.md that holds them, and the notices to show beside them."""
+    report.md that holds them, and the notices to show beside them (runs left out among them)."""
     import matplotlib
 
     matplotlib.use("Agg")
-    studies = by_study(load_runs(expand_runs(paths)))
+    left_out: list[str] = []
+    studies = by_study(load_runs(expand_runs(paths), left_out))
     for path in paths:
         if within(out, path):  # its pages would be written into the runs it reads
             raise SmspaceError(f"--out {out} lies inside {path}, which it reports on; choose another")
     out.mkdir(parents=True, exist_ok=True)
+    earlier = _recorded_files(out)
     written, table, figures = [], [], {}
+    variables = grid_variables(studies)
+    compared = []
+    if len(studies) > 1:
+        for variable in comparison_variables(studies):
+            path = out / f"compare_{safe_name(variable)}.png"
+            comparison_figure(studies, variable, path)
+            compared.append(path)
     for study in studies:
         # one study keeps the plain names; several are told apart by a prefix and never averaged together
-        prefix = "" if len(studies) == 1 else f"{study.name}_"
+        prefix = "" if len(studies) == 1 else f"{study.file_stem}_"
         figures[study.name] = [out / f"{prefix}curves.png"]
         curves_figure(study, figures[study.name][0])
         for mode, group in by_mode(study.runs).items():
@@ -456,8 +619,21 @@ def report(paths: list[Path], out: Path) -> tuple[list[Path], list[str]]:
             projection_figure(group[0], study.final_step, path)
             figures[study.name].append(path)
         written += figures[study.name]
-        table += final_table(study)
-    write_tables(studies, table, out)
-    notes = notices(studies)
-    page = markdown_report(studies, table, figures, notes, out)
-    return [*written, out / "final.csv", out / "final.md", out / "runs.csv", page], notes
+        table += final_table(study, variables)
+    write_tables(studies, table, out, variables)
+    notes = [f"report: left out {line}" for line in left_out] + notices(studies)
+    page = markdown_report(studies, table, figures, notes, out, compared, variables)
+    files = [*compared, *written, out / "final.csv", out / "final.md", out / "runs.csv", page]
+    for name in sorted(earlier - {f.name for f in files}):  # an earlier report's figures of studies gone now
+        (out / name).unlink(missing_ok=True)
+    (out / RECORD).write_text(json.dumps({"files": sorted(f.name for f in files)}, indent=1) + "\n")
+    return files, notes
+
+
+def _recorded_files(out: Path) -> set[str]:
+    """What an earlier report wrote into `out` (its record), never anything else found there."""
+    try:
+        names = json.loads((out / RECORD).read_text()).get("files", [])
+    except (FileNotFoundError, ValueError, AttributeError):
+        return set()
+    return {n for n in names if isinstance(n, str) and "/" not in n and n not in ("", ".", "..")}

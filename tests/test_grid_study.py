@@ -1,0 +1,146 @@
+"""A researcher's own grid study (a setup x model x N_h grid with the plugin demo's setup and
+network): its report compares the combinations, renders in a CommonMark viewer, and leaves out a
+run that never evaluated instead of failing."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from smspace.train.run_dir import RunDir
+
+from .conftest import run_cmd
+
+GRID_STUDY = """
+[study]
+modes = ["MM", "MME"]
+worlds = 2
+seed = 3
+transitions = 3000
+
+[train]
+steps = 60
+eval_every = 30
+batch_size = 50
+
+[grid]
+setup = ["grid", "line"]
+model = ["sensorimotor", "shallow"]
+n_h = [2, 3]
+
+[run]
+workers = 2
+"""
+
+
+@pytest.fixture(scope="module")
+def grid_study(tmp_path_factory) -> Path:
+    """The study folder of a 2 x 2 x 2 grid, trained once for this module."""
+    from smspace.datagen.setups import setup_names
+
+    if "line" not in setup_names():
+        pytest.fail("examples/plugin-demo is not installed: run `bash scripts/setup.sh`")
+    root = tmp_path_factory.mktemp("grid-study")
+    (root / "grid.toml").write_text(GRID_STUDY)
+    done = run_cmd("smtrain", "sweep", root / "grid.toml", "--lake", root / "lake", "--out", root / "out", timeout=900)
+    assert done.returncode == 0, done.stderr
+    return root / "out"
+
+
+def report(*args) -> tuple[Path, str]:
+    out = Path(args[-1])
+    done = run_cmd("smtrain", "report", *args[:-1], "--out", out, timeout=600)
+    assert done.returncode == 0, done.stderr
+    return out, done.stderr
+
+
+def rendered_images(page: Path) -> list[str]:
+    """The image sources a CommonMark renderer finds in report.md."""
+    from markdown_it import MarkdownIt
+
+    sources = []
+    for token in MarkdownIt("commonmark").parse(page.read_text()):
+        for child in token.children or []:
+            if child.type == "image":
+                sources.append(child.attrs["src"])
+    return sources
+
+
+def test_the_report_of_a_grid_compares_its_combinations(grid_study, tmp_path):
+    out, _ = report(grid_study, tmp_path / "report")
+    with open(out / "final.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 8 * 2  # eight combinations, two modes each
+    assert {(r["setup"], r["model"], r["n_h"]) for r in rows} == {
+        (s, m, n) for s in ("grid", "line") for m in ("sensorimotor", "shallow") for n in ("2", "3")
+    }
+    with open(out / "runs.csv") as fh:
+        runs = list(csv.DictReader(fh))
+    assert len(runs) == 8 * 2 * 2 and "model" in runs[0]
+    assert all(Path(r["path"], "config.json").exists() for r in runs)
+    assert len({r["path"] for r in runs}) == len(runs)  # run names repeat across combinations, paths do not
+    for variable in ("setup", "model", "n_h"):
+        assert (out / f"compare_{variable}.png").stat().st_size > 10_000, variable
+    images = rendered_images(out / "report.md")
+    assert images == [line.split("](")[1].rstrip(")") for line in (out / "report.md").read_text().splitlines()
+                      if line.startswith("![")]  # fmt: skip
+    assert len(images) >= 3 + 8 * 3 and all((out / src).is_file() for src in images)
+    assert all(src == src.strip() and not set(src) & set(" {}'\"<>()") for src in images)
+
+
+def test_a_report_into_its_own_folder_again_leaves_no_stale_figure(grid_study, tmp_path):
+    out, _ = report(grid_study, tmp_path / "report")
+    mine = out / "notes.txt"
+    mine.write_text("the researcher's own file")
+    one = next(p for p in sorted(grid_study.iterdir()) if p.is_dir() and "model=shallow" in p.name)
+    report(one, out)
+    pngs = sorted(p.name for p in out.glob("*.png"))
+    assert pngs == ["curves.png", "projection_MM.png", "projection_MME.png"], pngs
+    assert mine.read_text() == "the researcher's own file"
+    assert all((out / src).is_file() for src in rendered_images(out / "report.md"))
+
+
+def test_a_run_that_never_evaluated_is_left_out_and_named(grid_study, tmp_path):
+    study = tmp_path / "study"
+    combination = next(p for p in sorted(grid_study.iterdir()) if p.is_dir())
+    run = next(p for p in sorted(combination.iterdir()) if (p / "config.json").exists())
+    (study / combination.name).mkdir(parents=True)
+    broken = RunDir.create(study / combination.name / "failed-run", RunDir.open(run).config, False)
+    broken.set_status("failed", 0, "the plugin raised at step 0")
+    for other in sorted(combination.iterdir()):
+        if (other / "config.json").exists() and other != run:
+            (study / combination.name / other.name).symlink_to(other, target_is_directory=True)
+    out, said = report(study, tmp_path / "report")
+    assert "left out" in said and "failed-run" in said and "the plugin raised at step 0" in said
+    assert "failed-run" in (out / "report.md").read_text()
+    with open(out / "runs.csv") as fh:
+        assert len(list(csv.DictReader(fh))) == 3  # the other runs of the combination, reported
+
+
+def test_titles_name_the_network_and_its_precision(grid_study):
+    from smspace.train.report import by_study, expand_runs, load_runs
+
+    studies = by_study(load_runs(expand_runs([grid_study])))
+    labels = {st.label for st in studies}
+    assert {label.rsplit("; ", 1)[1] for label in labels} == {"shallow, fp32", "sensorimotor, fp32"}
+    config = json.loads(next(grid_study.glob("*/*/config.json")).read_text())
+    assert config["precision"] == "fp32"
+
+
+def test_ls_lists_into_study_and_grid_folders_with_the_network(grid_study):
+    listed = run_cmd("smtrain", "ls", "--runs", grid_study, "--json")
+    assert listed.returncode == 0, listed.stderr
+    rows = [json.loads(line) for line in listed.stdout.splitlines()]
+    assert len(rows) == 8 * 2 * 2 and {r["state"] for r in rows} == {"finished"}
+    assert len({r["study"] for r in rows}) == 8 and all(r["name"].startswith(r["study"] + "/") for r in rows)
+    assert {r["model"] for r in rows} == {"sensorimotor", "shallow"} and {r["precision"] for r in rows} == {"fp32"}
+    above = run_cmd("smtrain", "ls", "--runs", grid_study.parent)  # the folder holding the study
+    lines = above.stdout.splitlines()
+    assert above.returncode == 0 and len(lines) == 1 + 8 * 2 * 2, above.stdout
+    assert lines[1].startswith(f"{grid_study.name}/setup=grid,model=sensorimotor,n_h=2/grid-seed3-MM-nh2-seed3")
+    assert "shallow fp32" in above.stdout
+    info = run_cmd("smtrain", "info", rows[-1]["run"])
+    assert "model: shallow" in info.stdout and "precision: fp32" in info.stdout, info.stdout
