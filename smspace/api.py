@@ -138,9 +138,12 @@ def run_study(
     out: str | Path | None = None,
     lake: Lake | str | Path | None = None,
     workers: int | None = None,
+    overrides: Sequence[str] = (),
 ) -> list[Run]:
-    """Run (or resume, or extend) a study file (docs/STUDIES.md), as `smtrain sweep STUDY.toml`."""
+    """Run (or resume, or extend) a study file (docs/STUDIES.md), as `smtrain sweep STUDY.toml`;
+    `overrides` as the command's (["train.steps=2000", "grid.n_h=[3,5]"])."""
     from smspace.study.runner import run_study as run
 
     store = lake.store if isinstance(lake, Lake) else open_lake(lake).store
-    return [Run(r.store) for r in run(study_file, store, None if out is None else str(out), workers=workers)]
+    where = None if out is None else str(out)
+    return [Run(r.store) for r in run(study_file, store, where, workers=workers, overrides=overrides)]

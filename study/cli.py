@@ -28,6 +28,7 @@ from smspace.train.options import config_from_flags, config_options, given_field
 
 @main.command()
 @click.argument("study_file", required=False, type=click.Path(path_type=Path))
+@click.argument("overrides", nargs=-1)
 @generation.setup_option()
 @generation.modes_option("--modes", "modes", default="MEM,MM,MME", show_default=True)
 @generation.worlds_option(default=50)
@@ -60,6 +61,7 @@ from smspace.train.options import config_from_flags, config_options, given_field
 @friendly_errors
 def sweep(
     study_file,
+    overrides,
     setup_name,
     modes,
     worlds,
@@ -76,7 +78,8 @@ def sweep(
     **flags,
 ) -> None:
     """Generate missing datasets, then train every (world, mode) run as vectorised ensembles: from
-    flags, or from STUDY_FILE (TOML: docs/STUDIES.md), which may also vary any training field."""
+    flags, or from STUDY_FILE (TOML: docs/STUDIES.md), which may also vary any training field;
+    OVERRIDES (section.key=value, e.g. train.steps=2000 grid.n_h=[3,5]) apply on top of the file."""
     from smspace.common.cli import default_workers
     from smspace.datagen.setups import get_setup
     from smspace.lake.dataset import lake_store
@@ -85,9 +88,13 @@ def sweep(
     from smspace.train.engine import resolve_device
 
     ctx = click.get_current_context()
+    if study_file is not None and "=" in study_file.name and not study_file.exists():  # an override, no file
+        overrides, study_file = (str(study_file), *overrides), None
     if study_file is not None:
-        _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run)
+        _study_command(ctx, study_file, overrides, lake, out, overwrite, executor, workers, gen_workers, dry_run)
         return
+    if overrides:
+        raise SmspaceError(f"{overrides[0]}: overrides apply to a study file (smtrain sweep STUDY.toml KEY=VALUE…)")
     if dry_run:
         raise SmspaceError("--dry-run needs a study file (smtrain sweep STUDY.toml --dry-run)")
     if setup_name is None:
@@ -127,7 +134,7 @@ def sweep(
 STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions", "max_ensemble")
 
 
-def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen_workers, dry_run) -> None:
+def _study_command(ctx, study_file, overrides, lake, out, overwrite, executor, workers, gen_workers, dry_run) -> None:
     """`smtrain sweep STUDY.toml`: what the study computes comes from the file alone."""
     from smspace.lake.dataset import lake_store
     from smspace.study.runner import dry_run as plan_only
@@ -138,7 +145,7 @@ def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen
     if given:
         raise SmspaceError(f"{', '.join(given)}: set in the study file {study_file}, not on the command line")
     if dry_run:
-        for line in plan_only(study_file, lake_store(lake), out, workers, overwrite):
+        for line in plan_only(study_file, lake_store(lake), out, workers, overwrite, overrides):
             click.echo(line)
         return
     ex = executor if on_command_line(ctx, "executor") else None
@@ -147,7 +154,7 @@ def _study_command(ctx, study_file, lake, out, overwrite, executor, workers, gen
     ):
         runs = run_study(
             study_file, lake_store(lake), out, overwrite, workers, gen_workers, ex,
-            notify=lambda line: click.echo(line, err=True),
+            notify=lambda line: click.echo(line, err=True), overrides=overrides,
         )  # fmt: skip
     for run in runs:
         click.echo(display_name(run.url))

@@ -10,8 +10,15 @@
     steps = 100000
     [grid]                        # optional: one sub-study per combination of these values
     n_h = [3, 25]                 # (`setup` may be a key too: one sub-study per setup)
+    [pairs]                       # optional: values taken together, not crossed (equal lengths)
+    model = ["sensorimotor", "shallow"]
+    model_params = [{}, {width = 48}]
     [run]                         # how it runs, not what it computes
     workers = 2
+
+On the command line, `section.key=value` overrides (Hydra's habit) apply on top of the file:
+`smtrain sweep study.toml train.steps=2000 grid.n_h=[3,5]`; a value is TOML (a bare word is a
+string), and the resolved study records them (`overrides`).
 
 Read with the standard library (tomllib) and checked here, in one place: every error is one line
 naming the file and the key. A study's resolved file is recorded in its output folder
@@ -27,7 +34,8 @@ import json
 import math
 import re
 import tomllib
-from dataclasses import MISSING, Field, asdict, dataclass, field
+from collections.abc import Sequence
+from dataclasses import MISSING, Field, asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +48,7 @@ from smspace.train.terms import PER_RUN
 
 RECORD = "study-file.json"  # the resolved study, in its output folder
 SOURCE = "study-file.toml"  # the file as it was given
-SECTIONS = ("study", "train", "grid", "run")
+SECTIONS = ("study", "train", "grid", "pairs", "run")
 # [run] keys and their bounds: the same as the flags' (a million workers started a process per run)
 RUN_KEYS = {"workers": (1, MAX_WORKERS), "gen_workers": (1, MAX_WORKERS), "max_ensemble": (1, MAX_ENSEMBLE),
             "executor": None}  # fmt: skip
@@ -62,15 +70,27 @@ class StudyFile:
     train: dict[str, Any]
     grid: dict[str, list[Any]]
     run: dict[str, Any] = field(default_factory=dict)
+    pairs: dict[str, list[Any]] = field(default_factory=dict)
+    overrides: list[str] = field(default_factory=list)  # `section.key=value` given on the command line
 
     @property
     def world_seeds(self) -> list[int]:
         return list(range(self.seed, self.seed + self.worlds))
 
     def combinations(self) -> list[dict[str, Any]]:
-        """One {field: value} per sub-study, in the file's order ([{}] without a grid)."""
+        """One {field: value} per sub-study, in the file's order ([{}] without a grid): the grid's
+        values crossed, each with every tuple of [pairs]; a combination given twice is one."""
         keys = list(self.grid)
-        return [dict(zip(keys, values, strict=True)) for values in itertools.product(*self.grid.values())]
+        paired = [dict(zip(self.pairs, values, strict=True)) for values in zip(*self.pairs.values(), strict=True)]
+        found, seen = [], set()
+        for values in itertools.product(*self.grid.values()):
+            for pair in paired or [{}]:
+                combination = dict(zip(keys, values, strict=True)) | pair
+                key = json.dumps(combination, sort_keys=True)
+                if key not in seen:
+                    seen.add(key)
+                    found.append(combination)
+        return found
 
     def setup_of(self, combination: dict[str, Any]) -> str:
         return combination.get(SETUP_KEY, self.setup)
@@ -101,14 +121,14 @@ def _short(value: Any) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
-def load_study(path: Path | str) -> StudyFile:
+def load_study(path: Path | str, overrides: Sequence[str] = ()) -> StudyFile:
     """The study in a TOML file, checked; SmspaceError naming the file and key otherwise."""
-    return read_study(path)[0]
+    return read_study(path, overrides)[0]
 
 
-def read_study(path: Path | str) -> tuple[StudyFile, bytes]:
+def read_study(path: Path | str, overrides: Sequence[str] = ()) -> tuple[StudyFile, bytes]:
     """The study and the bytes it was parsed from, read once (a pipe, `<(cat study.toml)`, reads
-    empty the second time: the recorded copy was empty)."""
+    empty the second time: the recorded copy was empty), with the command line's overrides."""
     path = Path(path)
     try:
         source = path.read_bytes()
@@ -121,7 +141,43 @@ def read_study(path: Path | str) -> tuple[StudyFile, bytes]:
         raise SmspaceError(f"{path} is not valid TOML: {e}") from None
     except RecursionError:  # thousands of nested arrays
         raise SmspaceError(f"{path} nests its values too deeply to be a study file") from None
-    return parse_study(raw, str(path), default_name=path.stem), source
+    raw = apply_overrides(raw, overrides)
+    study = parse_study(raw, str(path), default_name=path.stem)
+    return replace(study, overrides=list(overrides)), source
+
+
+OVERRIDE = re.compile(r"(?P<section>[a-z]+)\.(?P<key>[A-Za-z_][A-Za-z0-9_]*)=(?P<value>.*)", re.S)
+
+
+def apply_overrides(raw: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+    """`section.key=value` on top of the parsed file; a key moves out of the other of [train],
+    [grid] and [pairs] (train.n_h=5 replaces grid.n_h). Checked afterwards like the file itself."""
+    raw = {section: dict(values) if isinstance(values, dict) else values for section, values in raw.items()}
+    for text in overrides:
+        match = OVERRIDE.fullmatch(text)
+        if match is None or match["section"] not in SECTIONS:
+            raise SmspaceError(
+                f"override {text!r}: expected section.key=value with a section of {', '.join(SECTIONS)} "
+                "(e.g. train.steps=2000 or grid.n_h=[3,5])"
+            )
+        section, key = match["section"], match["key"]
+        try:
+            value = tomllib.loads(f"v = {match['value']}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = match["value"]  # a bare word: a string (train.model=shallow)
+        if section in ("train", "grid", "pairs"):
+            for other in ("train", "grid", "pairs"):
+                if isinstance(raw.get(other), dict):
+                    raw[other].pop(key, None)
+        if section == "study" and key == "setup" and isinstance(raw.get("grid"), dict):
+            raw["grid"].pop("setup", None)
+        if section == "grid" and key == "setup" and isinstance(raw.get("study"), dict):
+            raw["study"].pop("setup", None)
+        target = raw.setdefault(section, {})
+        if not isinstance(target, dict):
+            raise SmspaceError(f"override {text!r}: [{section}] of the file is not a table")
+        target[key] = value
+    return raw
 
 
 def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") -> StudyFile:
@@ -136,11 +192,11 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
         if not isinstance(raw[section], dict):
             raise bad(section, "must be a table ([" + section + "])")
     study = dict(raw.get("study", {}))
-    grid_setups = raw.get("grid", {}).get(SETUP_KEY)
-    if "setup" not in study and grid_setups is None:
+    varied = [section for section in ("grid", "pairs") if SETUP_KEY in raw.get(section, {})]
+    if "setup" not in study and not varied:
         raise bad("study.setup", "missing (the setup every dataset of the study is generated with, or grid.setup)")
-    if "setup" in study and grid_setups is not None:
-        raise bad("grid.setup", "is also set in [study]: give it in one place")
+    if "setup" in study and varied:
+        raise bad(f"{varied[0]}.setup", "is also set in [study]: give it in one place")
     known = {"name", "setup", "modes", "worlds", "seed", "transitions"}
     for key in study:
         if key not in known:
@@ -163,27 +219,23 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
 
     fields_by_name = {f.name: f for f in flag_fields() if f.name not in NOT_TRAINABLE}
     train = {k: _train_value(fields_by_name, k, v, bad, f"train.{k}") for k, v in raw.get("train", {}).items()}
-    grid: dict[str, list[Any]] = {}
     sizes = [len(v) if isinstance(v, list) else 1 for v in raw.get("grid", {}).values()]
-    if math.prod(sizes) > MAX_COMBINATIONS:  # before anything is built: 1000 x 1000 values took seconds
-        shown = " x ".join(map(str, sizes))
-        raise bad("grid", f"{shown} = {math.prod(sizes)} combinations; at most {MAX_COMBINATIONS}")
-    for key, values in raw.get("grid", {}).items():
-        if not isinstance(values, list) or not values:
-            raise bad(f"grid.{key}", "must be a non-empty list of values")
-        if key in train:
-            raise bad(f"grid.{key}", "is also set in [train]: give it in one place")
-        if key == SETUP_KEY:
-            checked = [_string(v, bad, "grid.setup") for v in values]
-            for setup_name in checked:
-                _check_setup(setup_name, bad, "grid.setup")
-        else:
-            checked = [_train_value(fields_by_name, key, v, bad, f"grid.{key}") for v in values]
-        if len({json.dumps(v, sort_keys=True) for v in checked}) != len(checked):
-            raise bad(f"grid.{key}", "names a value twice")
-        grid[key] = checked
+    pair_sizes = {len(v) if isinstance(v, list) else 1 for v in raw.get("pairs", {}).values()}
+    total = math.prod(sizes) * max(pair_sizes, default=1)
+    if total > MAX_COMBINATIONS:  # before anything is built: 1000 x 1000 values took seconds
+        shown = " x ".join(map(str, sizes + sorted(pair_sizes)[-1:]))
+        raise bad("grid", f"{shown} = {total} combinations; at most {MAX_COMBINATIONS}")
+    grid = {k: _varied(fields_by_name, train, "grid", k, values, bad) for k, values in raw.get("grid", {}).items()}
+    pairs: dict[str, list[Any]] = {}
+    for key, values in raw.get("pairs", {}).items():
+        if key in grid:
+            raise bad(f"pairs.{key}", "is also set in [grid]: give it in one place")
+        pairs[key] = _varied(fields_by_name, train, "pairs", key, values, bad, once=False)
+    if len({len(v) for v in pairs.values()}) > 1:
+        shown = ", ".join(f"{k} {len(v)}" for k, v in pairs.items())
+        raise bad("pairs", f"lists of different lengths ({shown}): each value is paired with those at its place")
     run = _run_section(raw.get("run", {}), bad)
-    resolved = StudyFile(name, setup, modes, worlds, seed, transitions, train, grid, run)
+    resolved = StudyFile(name, setup, modes, worlds, seed, transitions, train, grid, run, pairs)
     for combination in resolved.combinations():  # what only the whole config can check (lr > 0…)
         try:
             resolved.config(combination)
@@ -197,6 +249,24 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
     if len(set(names)) != len(names):
         raise bad("grid", "two combinations would share a folder name; give values that print differently")
     return resolved
+
+
+def _varied(fields_by_name: dict[str, Field], train: dict[str, Any], section: str, key: str, values: Any, bad,
+            once: bool = True) -> list[Any]:  # fmt: skip
+    """The values a [grid] or [pairs] key takes, each checked as the field's; a grid names each once."""
+    if not isinstance(values, list) or not values:
+        raise bad(f"{section}.{key}", "must be a non-empty list of values")
+    if key in train:
+        raise bad(f"{section}.{key}", "is also set in [train]: give it in one place")
+    if key == SETUP_KEY:
+        checked = [_string(v, bad, f"{section}.setup") for v in values]
+        for setup_name in checked:
+            _check_setup(setup_name, bad, f"{section}.setup")
+    else:
+        checked = [_train_value(fields_by_name, key, v, bad, f"{section}.{key}") for v in values]
+    if once and len({json.dumps(v, sort_keys=True) for v in checked}) != len(checked):
+        raise bad(f"{section}.{key}", "names a value twice")
+    return checked
 
 
 def _check_setup(setup: str, bad, key: str) -> None:
@@ -291,7 +361,7 @@ def changes(recorded: dict[str, Any], now: dict[str, Any]) -> list[str]:
     """What differs between the study recorded in a folder and the file given now, one phrase per
     key ("study.worlds 3 -> 4"); how it runs ([run]) is not part of what a study computes."""
     out = []
-    for section in ("name", "setup", "modes", "worlds", "seed", "transitions", "train", "grid"):
+    for section in ("name", "setup", "modes", "worlds", "seed", "transitions", "train", "grid", "pairs"):
         a, b = recorded.get(section), now.get(section)
         if isinstance(a, dict) and isinstance(b, dict):
             for key in sorted(a.keys() | b.keys()):

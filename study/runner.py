@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -93,9 +93,11 @@ def run_study(
     gen_workers: int | None = None,
     executor: str | None = None,
     notify: Callable[[str], None] = lambda line: None,
+    overrides: Sequence[str] = (),
 ) -> list[RunDir]:
-    """Run (or resume, or extend) a study file; arguments given here override its [run] section."""
-    study, source = read_study(path)
+    """Run (or resume, or extend) a study file; arguments given here override its [run] section,
+    `overrides` (section.key=value) any of its keys."""
+    study, source = read_study(path, overrides)
     out = open_store(out if out is not None else f"{RUNS}/{study.name}")
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = gen_workers or study.run.get("gen_workers", workers)
@@ -103,7 +105,7 @@ def run_study(
     max_ensemble = study.run.get("max_ensemble", DEFAULT_MAX_ENSEMBLE)
     check_apart(out, lake)
     combos = combinations(study, out)
-    checked = [check_terms(c.plan, c.out, overwrite) for c in combos]  # every refusal before any write
+    checked = [_checked(path, c, overwrite) for c in combos]  # every refusal before any write
     _refuse_what_the_lake_cannot_hold(lake, study, combos)
     for line in study_changes(study, out, overwrite):
         notify(line)
@@ -123,6 +125,15 @@ def run_study(
     first = combos[0].plan.template
     run_ensembles(ensembles_todo, executor, workers, first.threads, first.device)
     return runs
+
+
+def _checked(path: Path | str, combo: Combination, overwrite: bool) -> tuple[TrainConfig, str | None]:
+    """check_terms, its refusal naming the study file and the combination it is about."""
+    try:
+        return check_terms(combo.plan, combo.out, overwrite)
+    except SmspaceError as e:
+        at = folder_name(combo.values)
+        raise type(e)(f"{path}: {f'[{at}] ' if at else ''}{e}") from e
 
 
 def study_changes(study: StudyFile, out: Store, overwrite: bool) -> list[str]:
@@ -182,11 +193,16 @@ class SetupProbe:
 
 
 def dry_run(
-    path: Path | str, lake: Store, out: Store | str | None, workers: int | None = None, overwrite: bool = False
+    path: Path | str,
+    lake: Store,
+    out: Store | str | None,
+    workers: int | None = None,
+    overwrite: bool = False,
+    overrides: Sequence[str] = (),
 ) -> list[str]:
     """The lines of a dry run: datasets to generate, runs (new / to resume / finished), the disk
     they need and the time they take at rates measured here and now. Writes nothing."""
-    study = load_study(path)
+    study = load_study(path, overrides)
     out = open_store(out if out is not None else f"{RUNS}/{study.name}")
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = study.run.get("gen_workers", workers)
@@ -194,7 +210,7 @@ def dry_run(
     check_apart(out, lake)
     combos = combinations(study, out)
     for combo in combos:
-        check_terms(combo.plan, combo.out, overwrite)  # what a real run would refuse
+        _checked(path, combo, overwrite)  # what a real run would refuse
     _refuse_what_the_lake_cannot_hold(lake, study, combos)
     setups = list(dict.fromkeys(combo.plan.setup for combo in combos))
     worlds = f"{study.seed}..{study.seed + study.worlds - 1}"

@@ -144,3 +144,70 @@ def test_ls_lists_into_study_and_grid_folders_with_the_network(grid_study):
     assert "shallow fp32" in above.stdout
     info = run_cmd("smtrain", "info", rows[-1]["run"])
     assert "model: shallow" in info.stdout and "precision: fp32" in info.stdout, info.stdout
+
+
+def test_overrides_on_the_command_line_apply_on_top_of_the_file_and_are_recorded(tmp_path):
+    from smspace.common.errors import SmspaceError
+    from smspace.study.file import load_study
+
+    path = tmp_path / "s.toml"
+    path.write_text(GRID_STUDY)
+    study = load_study(path, ["train.steps=2000", "grid.n_h=[3,5]", "train.model=shallow", "study.worlds=3"])
+    assert study.train["steps"] == 2000 and study.grid["n_h"] == [3, 5] and study.worlds == 3
+    assert "model" not in study.grid and study.train["model"] == "shallow"  # moved out of [grid]
+    assert {c["n_h"] for c in study.combinations()} == {3, 5} and len(study.combinations()) == 4
+    for bad, named in (("steps=5", "expected section.key=value"), ("train.steps=0", "train.steps"),
+                       ("grid.n_h=3", "grid.n_h"), ("trian.steps=5", "expected section.key=value")):  # fmt: skip
+        with pytest.raises(SmspaceError, match=named):
+            load_study(path, [bad])
+    lake, out = tmp_path / "lake", tmp_path / "out"
+    given = ['grid.setup=["grid"]', 'grid.model=["sensorimotor"]', "grid.n_h=[3]", "study.worlds=1",
+             'study.modes=["MM"]', "train.steps=30"]  # fmt: skip
+    done = run_cmd("smtrain", "sweep", path, *given, "--lake", lake, "--out", out)
+    assert done.returncode == 0, done.stderr
+    recorded = json.loads((out / "study-file.json").read_text())
+    assert recorded["overrides"][-1] == "train.steps=30" and recorded["train"]["steps"] == 30
+    assert [p.name for p in out.iterdir() if p.is_dir()] == ["setup=grid,model=sensorimotor,n_h=3"]
+    refused = run_cmd("smtrain", "sweep", "--setup", "grid", "train.steps=3", "--out", out)
+    assert refused.returncode == 2 and "overrides apply to a study file" in refused.stderr
+
+
+def test_pairs_take_values_together_and_a_combination_given_twice_is_one(tmp_path):
+    from smspace.common.errors import SmspaceError
+    from smspace.study.file import folder_name, load_study
+
+    path = tmp_path / "s.toml"
+    path.write_text(
+        '[study]\nsetup = "grid"\n[grid]\nn_h = [2, 3]\n'
+        '[pairs]\nmodel = ["sensorimotor", "shallow", "shallow"]\nmodel_params = [{}, {width = 48}, {width = 48}]\n'
+    )
+    names = [folder_name(c) for c in load_study(path).combinations()]
+    assert names == [
+        "n_h=2,model=sensorimotor,model_params=none", "n_h=2,model=shallow,model_params=width48",
+        "n_h=3,model=sensorimotor,model_params=none", "n_h=3,model=shallow,model_params=width48",
+    ]  # fmt: skip
+    path.write_text('[study]\nsetup = "grid"\n[pairs]\nmodel = ["sensorimotor", "shallow"]\nn_h = [2]\n')
+    with pytest.raises(SmspaceError, match=r"pairs: lists of different lengths \(model 2, n_h 1\)"):
+        load_study(path)
+    path.write_text('[study]\nsetup = "grid"\n[grid]\nn_h = [2]\n[pairs]\nn_h = [3]\n')
+    with pytest.raises(SmspaceError, match=r"pairs\.n_h: is also set in"):
+        load_study(path)
+
+
+def test_a_combination_a_network_refuses_is_named_with_its_file_and_pairs_avoid_it(tmp_path):
+    crossed = tmp_path / "crossed.toml"
+    crossed.write_text(
+        '[study]\nsetup = "grid"\nmodes = ["MM"]\n[grid]\nmodel = ["sensorimotor", "shallow"]\n'
+        "model_params = [{width = 48}]\n"
+    )
+    refused = run_cmd("smtrain", "sweep", crossed, "--dry-run", "--lake", tmp_path / "lake", "--out", tmp_path / "o")
+    assert refused.returncode == 2, refused.stderr
+    assert f"{crossed}: [model=sensorimotor,model_params=width48] model 'sensorimotor'" in refused.stderr
+    paired = tmp_path / "paired.toml"
+    paired.write_text(
+        '[study]\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 3000\n[train]\nsteps = 100\n'
+        '[pairs]\nmodel = ["sensorimotor", "shallow"]\nmodel_params = [{}, {width = 48}]\n'
+    )
+    dry = run_cmd("smtrain", "sweep", paired, "--dry-run", "--lake", tmp_path / "lake", "--out", tmp_path / "o")
+    assert dry.returncode == 0, dry.stderr
+    assert "2 combination(s)" in dry.stdout and "model=shallow,model_params=width48: 1 runs" in dry.stdout
