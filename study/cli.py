@@ -4,6 +4,7 @@ added, and nothing in train/ imports the generators or the studies (tests/test_l
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -95,8 +96,6 @@ def sweep(
         return
     if overrides:
         raise SmspaceError(f"{overrides[0]}: overrides apply to a study file (smtrain sweep STUDY.toml KEY=VALUE…)")
-    if dry_run:
-        raise SmspaceError("--dry-run needs a study file (smtrain sweep STUDY.toml --dry-run)")
     if setup_name is None:
         raise SmspaceError("give a study file or --setup (smtrain sweep --help)")
     get_setup(setup_name)
@@ -106,6 +105,17 @@ def sweep(
     say_precision(flags)
     resolve_device(template.device)
     out = out or RUNS
+    if dry_run:  # the flags as the study they describe, budgeted as a study file is
+        from smspace.study.file import StudyFile
+        from smspace.study.runner import plan_lines
+
+        given = {name: getattr(template, name) for name in given_fields(ctx)}
+        run = {"workers": workers or default_workers(), "gen_workers": gen_workers or workers or default_workers(),
+               "max_ensemble": max_ensemble}  # fmt: skip
+        study = StudyFile("sweep", setup_name, mode_list, worlds, first_world, transitions, given, {}, run)
+        for line in plan_lines(study, "the flags of smtrain sweep", lake_store(lake), out, workers, overwrite):
+            click.echo(line)
+        return
     message = (
         f"interrupted; the runs in {out} keep their last checkpoints and the lake its complete parts: "
         "the same command resumes them"
@@ -127,8 +137,15 @@ def sweep(
             explicit=given_fields(ctx),
             notify=lambda line: click.echo(line, err=True),
         )
+    _echo_finals(runs)
+
+
+def _echo_finals(runs) -> None:
+    """One line per run, as a lone fit ends: where it is, then its last evaluation (JSON)."""
     for run in runs:
-        click.echo(display_name(run.url))
+        last = run.summary()
+        shown = {k: last[k] for k in ("state", "step", "eval_loss", "d_topo", "d_metric")}
+        click.echo(f"{display_name(run.url)}\t{json.dumps(shown)}")
 
 
 STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions", "max_ensemble")
@@ -156,8 +173,7 @@ def _study_command(ctx, study_file, overrides, lake, out, overwrite, executor, w
             study_file, lake_store(lake), out, overwrite, workers, gen_workers, ex,
             notify=lambda line: click.echo(line, err=True), overrides=overrides,
         )  # fmt: skip
-    for run in runs:
-        click.echo(display_name(run.url))
+    _echo_finals(runs)
 
 
 if __name__ == "__main__":

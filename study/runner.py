@@ -37,7 +37,7 @@ from smspace.study.sweep import (
     run_ensembles,
     study_record,
 )
-from smspace.train.config import RUNS, TrainConfig, parameter_count
+from smspace.train.config import RUNS, TrainConfig, flag_fields, parameter_count
 from smspace.train.run_dir import CONFIG, RunDir
 from smspace.train.terms import terms
 
@@ -114,7 +114,7 @@ def run_study(
             notify(change)
     out.make()
     out.put(SOURCE, source)
-    out.put(RECORD, (json.dumps(study.to_dict(), indent=1) + "\n").encode())
+    out.put(RECORD, (json.dumps(_resolved(study, combos, checked), indent=1) + "\n").encode())
     runs, ensembles_todo = [], []
     for combo, (template, _) in zip(combos, checked, strict=True):
         got, todo = prepare(
@@ -125,6 +125,17 @@ def run_study(
     first = combos[0].plan.template
     run_ensembles(ensembles_todo, executor, workers, first.threads, first.device)
     return runs
+
+
+def _resolved(study: StudyFile, combos: list[Combination], checked: list[tuple[TrainConfig, str | None]]) -> dict:
+    """The study as recorded: the file's sections, and each combination as it trains (its setup,
+    every training flag with the defaults and the setup's network filled in)."""
+    resolved = [
+        {"folder": folder_name(c.values), "setup": c.plan.setup,
+         "train": {f.name: getattr(template, f.name) for f in flag_fields()}}
+        for c, (template, _) in zip(combos, checked, strict=True)
+    ]  # fmt: skip
+    return study.to_dict() | {"combinations": resolved}
 
 
 def _checked(path: Path | str, combo: Combination, overwrite: bool) -> tuple[TrainConfig, str | None]:
@@ -203,7 +214,14 @@ def dry_run(
     """The lines of a dry run: datasets to generate, runs (new / to resume / finished), the disk
     they need and the time they take at rates measured here and now. Writes nothing."""
     study = load_study(path, overrides)
-    out = open_store(out if out is not None else f"{RUNS}/{study.name}")
+    return plan_lines(study, str(path), lake, out if out is not None else f"{RUNS}/{study.name}", workers, overwrite)
+
+
+def plan_lines(
+    study: StudyFile, path: str, lake: Store, out: Store | str, workers: int | None = None, overwrite: bool = False
+) -> list[str]:
+    """A dry run of a study, whether it came from a file or from a sweep's flags (`path` says which)."""
+    out = open_store(out)
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = study.run.get("gen_workers", workers)
     max_ensemble = study.run.get("max_ensemble", DEFAULT_MAX_ENSEMBLE)

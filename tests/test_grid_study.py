@@ -165,8 +165,14 @@ def test_overrides_on_the_command_line_apply_on_top_of_the_file_and_are_recorded
              'study.modes=["MM"]', "train.steps=30"]  # fmt: skip
     done = run_cmd("smtrain", "sweep", path, *given, "--lake", lake, "--out", out)
     assert done.returncode == 0, done.stderr
+    (where, final), *_ = [line.split("\t") for line in done.stdout.splitlines()]  # as a lone fit ends
+    assert Path(where).name == "grid-seed3-MM-nh3-seed3" and json.loads(final)["step"] == 30
+    assert json.loads(final)["state"] == "finished" and json.loads(final)["d_topo"] > 0
     recorded = json.loads((out / "study-file.json").read_text())
     assert recorded["overrides"][-1] == "train.steps=30" and recorded["train"]["steps"] == 30
+    (combination,) = recorded["combinations"]  # as it trains: its setup, every flag with its default
+    assert combination["setup"] == "grid" and combination["folder"] == "setup=grid,model=sensorimotor,n_h=3"
+    assert combination["train"]["lr_start"] == 0.001 and combination["train"]["encoder_layers"] == [150, 100, 50]
     assert [p.name for p in out.iterdir() if p.is_dir()] == ["setup=grid,model=sensorimotor,n_h=3"]
     refused = run_cmd("smtrain", "sweep", "--setup", "grid", "train.steps=3", "--out", out)
     assert refused.returncode == 2 and "overrides apply to a study file" in refused.stderr
@@ -211,3 +217,13 @@ def test_a_combination_a_network_refuses_is_named_with_its_file_and_pairs_avoid_
     dry = run_cmd("smtrain", "sweep", paired, "--dry-run", "--lake", tmp_path / "lake", "--out", tmp_path / "o")
     assert dry.returncode == 0, dry.stderr
     assert "2 combination(s)" in dry.stdout and "model=shallow,model_params=width48: 1 runs" in dry.stdout
+
+
+def test_a_sweep_given_by_flags_has_a_dry_run_too(tmp_path):
+    lake, out = tmp_path / "lake", tmp_path / "runs"
+    flags = ["--setup", "grid", "--modes", "MM,MME", "--worlds", 2, "--transitions", 3000, "--steps", 200, "--nh", 4]
+    dry = run_cmd("smtrain", "sweep", *flags, "--dry-run", "--lake", lake, "--out", out)
+    assert dry.returncode == 0, dry.stderr
+    assert "(the flags of smtrain sweep): setup grid, modes MM,MME, worlds 0..1" in dry.stdout
+    assert "(no grid): 4 runs, 800 run-steps to train" in dry.stdout and "runs: 4 new, 0 to resume" in dry.stdout
+    assert not lake.exists() and not out.exists()
