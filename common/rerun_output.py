@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -49,6 +50,22 @@ def view_options(fn: Callable) -> Callable:
     return wrapper
 
 
+def has_display() -> bool:
+    """Whether a viewer window can open here (Linux needs X11 or Wayland; other systems have one)."""
+    if not sys.platform.startswith("linux"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def free_name(path: Path) -> Path:
+    """`path`, or `path` with -1, -2… before its suffix where a file already has the name."""
+    candidate, n = path, 0
+    while candidate.exists():
+        n += 1
+        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
+    return candidate
+
+
 def rerun_binary() -> Path:
     import rerun_cli
 
@@ -70,6 +87,13 @@ def recording(app_id: str, recording_id: str, blueprint, output: ViewOutput, sou
     save, web = output.save, output.web
     if save is not None and web:
         raise SmspaceError("choose one of --save and --web")
+    if save is None and not web and not has_display():  # a viewer window cannot open: write the file
+        save = free_name(Path.cwd() / f"{re.sub(r'[^A-Za-z0-9._-]+', '-', recording_id).strip('-')}.rrd")
+        click.echo(
+            f"smspace: note: no display here ($DISPLAY and $WAYLAND_DISPLAY unset): the recording goes to {save} "
+            f"(open it with `rerun {save}` where there is one, or use --web)",
+            err=True,
+        )
     tmp = partial = None
     if save is not None:
         check_output(save, output.overwrite, [source])

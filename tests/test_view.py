@@ -18,7 +18,7 @@ import pytest
 from smspace.datagen.export import read_parquet_transitions
 from smspace.lake.dataset import Dataset
 
-from .conftest import BIN, SAMPLES, smgen
+from .conftest import BIN, SAMPLES, run_cmd, smgen
 
 RERUN_ENV = {"CI": "true", "PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/root")}
 
@@ -192,3 +192,16 @@ def test_web_viewer_binds_loopback_and_ctrl_c_stops_everything():
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_view_without_a_display_writes_the_recording_and_says_where(tmp_path, monkeypatch):
+    """No $DISPLAY: a viewer window cannot open (it took ~13 s, then gRPC logs and a traceback);
+    the recording is written to the current folder instead, under a name not yet taken."""
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    (tmp_path / "grid-seed0-MM.rrd").write_bytes(b"someone's file")
+    done = run_cmd("smgen", "view", "grid-seed0-MM", "--lake", SAMPLES, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    written = tmp_path / "grid-seed0-MM-1.rrd"
+    assert f"the recording goes to {written}" in done.stderr and "Traceback" not in done.stderr
+    assert rrd_rows(written) and (tmp_path / "grid-seed0-MM.rrd").read_bytes() == b"someone's file"
