@@ -28,11 +28,13 @@ __all__ = [
     "TransitionStream",
     "Transitions",
     "affine_projection",
+    "dry_run",
     "fit",
     "generate",
     "load_dataset",
     "open_lake",
     "open_run",
+    "report",
     "resume",
     "run_study",
     "spatial_scores",
@@ -56,6 +58,8 @@ _WHERE = {
     "resume": "smspace.api",
     "open_run": "smspace.api",
     "run_study": "smspace.api",
+    "dry_run": "smspace.api",
+    "report": "smspace.api",
     "fit": "smspace.api",
 }
 
@@ -73,7 +77,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
-    from smspace.api import Lake, Run, fit, generate, load_dataset, open_lake, resume
+    from smspace.api import Lake, Run, dry_run, fit, generate, load_dataset, open_lake, report, resume
     from smspace.common.errors import SmspaceError
     from smspace.lake.dataset import Dataset
     from smspace.lake.transitions import MODES, Transitions

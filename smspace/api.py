@@ -147,3 +147,28 @@ def run_study(
     store = lake.store if isinstance(lake, Lake) else open_lake(lake).store
     where = None if out is None else str(out)
     return [Run(r.store) for r in run(study_file, store, where, workers=workers, overrides=overrides)]
+
+
+def dry_run(
+    study_file: str | Path,
+    out: str | Path | None = None,
+    lake: Lake | str | Path | None = None,
+    workers: int | None = None,
+    overrides: Sequence[str] = (),
+) -> list[str]:
+    """What a study file would generate, train, store and take, as `smtrain sweep STUDY.toml
+    --dry-run` prints it, one line each; writes nothing."""
+    from smspace.study.runner import dry_run as plan
+
+    store = lake.store if isinstance(lake, Lake) else open_lake(lake).store
+    return plan(study_file, store, None if out is None else str(out), workers=workers, overrides=overrides)
+
+
+def report(runs: Sequence[str | Path | RunView], out: str | Path) -> Path:
+    """The figures, tables and report.md of runs (run folders or study folders), as `smtrain
+    report`; returns report.md, which opens with the notes the command prints (runs left out,
+    studies kept apart)."""
+    from smspace.train.report import report as draw
+
+    written, _ = draw([r.url if isinstance(r, RunView) else r for r in runs], Path(out))
+    return next(p for p in written if p.name == "report.md")

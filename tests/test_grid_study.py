@@ -227,3 +227,17 @@ def test_a_sweep_given_by_flags_has_a_dry_run_too(tmp_path):
     assert "(the flags of smtrain sweep): setup grid, modes MM,MME, worlds 0..1" in dry.stdout
     assert "(no grid): 4 runs, 800 run-steps to train" in dry.stdout and "runs: 4 new, 0 to resume" in dry.stdout
     assert not lake.exists() and not out.exists()
+
+
+def test_report_and_dry_run_from_python(grid_study, tmp_path):
+    import smspace
+
+    page = smspace.report([grid_study], tmp_path / "report")
+    assert page.name == "report.md" and (tmp_path / "report" / "compare_model.png").exists()
+    runs = [smspace.open_run(p.parent) for p in sorted(grid_study.glob("*model=shallow*/*/config.json"))][:2]
+    assert smspace.report(runs, tmp_path / "two").exists()
+    study = tmp_path / "s.toml"
+    study.write_text(GRID_STUDY)
+    lines = smspace.dry_run(study, tmp_path / "o", lake=tmp_path / "lake", overrides=["train.steps=30"])
+    assert lines[-1] == "dry run: nothing was written" and "8 combination(s)" in lines[0]
+    assert not (tmp_path / "o").exists()
