@@ -108,6 +108,6 @@ def board_scalars(run: Path) -> dict[str, list[tuple[int, float]]]:
     """A run's TensorBoard scalars, read back with tensorboard's own reader."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    events = EventAccumulator(str(run / "tensorboard"))
+    events = EventAccumulator(str(run))
     events.Reload()
     return {tag: [(e.step, e.value) for e in events.Scalars(tag)] for tag in events.Tags()["scalars"]}

@@ -146,6 +146,50 @@ def test_ls_lists_into_study_and_grid_folders_with_the_network(grid_study):
     assert "model: shallow" in info.stdout and "precision: fp32" in info.stdout, info.stdout
 
 
+def hparams_view(root: Path) -> dict[str, tuple[dict, dict]]:
+    """What TensorBoard's HParams tab shows for `--logdir root`: {run: (hparams, last metrics)},
+    through the plugin's own backend."""
+    from tensorboard import context
+    from tensorboard.backend.event_processing import data_provider, plugin_event_multiplexer
+    from tensorboard.plugins import base_plugin
+    from tensorboard.plugins.hparams import api_pb2, backend_context, list_session_groups
+
+    mux = plugin_event_multiplexer.EventMultiplexer()
+    mux.AddRunsFromDirectory(str(root))
+    mux.Reload()
+    provider = data_provider.MultiplexerDataProvider(mux, str(root))
+    backend = backend_context.Context(base_plugin.TBContext(data_provider=provider, logdir=str(root)))
+    request = api_pb2.ListSessionGroupsRequest(start_index=0, slice_size=1000, allowed_statuses=range(5))
+    groups = list_session_groups.Handler(context.RequestContext(), backend, "", request).run().session_groups
+    return {
+        g.name: (
+            {k: getattr(v, v.WhichOneof("kind")) for k, v in g.hparams.items()},
+            {m.name.tag: (m.training_step, m.value) for m in g.metric_values},
+        )
+        for g in groups
+    }
+
+
+def test_tensorboard_compares_the_grid_in_its_hparams_tab_one_stream_per_run(grid_study):
+    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+    view = hparams_view(grid_study)
+    runs = sorted(p.parent for p in grid_study.glob("*/*/config.json"))
+    assert sorted(view) == sorted(str(r.relative_to(grid_study)) for r in runs)  # named after the run folder
+    for run in runs:
+        hparams, metrics = view[str(run.relative_to(grid_study))]
+        config = json.loads((run / "config.json").read_text())
+        assert hparams["setup"] == config["setup"] and hparams["model"] == config["model"]
+        assert hparams["n_h"] == config["n_h"] and hparams["precision"] == config["precision"]
+        assert json.loads(hparams["model_params"]) == config["model_params"]
+        last = RunDir.open(run).metrics()[-1]
+        assert metrics["space/D_metric"] == (last["step"], pytest.approx(last["d_metric"], rel=1e-6))
+        (stream,) = run.glob("*tfevents*")  # one stream, read in order
+        steps = [e.step for e in EventFileLoader(str(stream)).Load() if e.HasField("summary")]
+        assert steps == sorted(steps) and steps[-1] == last["step"]
+    assert {h["model"] for h, _ in view.values()} == {"sensorimotor", "shallow"}
+
+
 def test_overrides_on_the_command_line_apply_on_top_of_the_file_and_are_recorded(tmp_path):
     from smspace.common.errors import SmspaceError
     from smspace.study.file import load_study

@@ -31,7 +31,7 @@ def test_a_run_s_tensorboard_files_hold_its_metrics_and_its_learned_space(tmp_pa
         np.testing.assert_allclose([v for _, v in scalars[tag]], [v for _, v in expected], rtol=1e-6, err_msg=tag)
     assert [s for s, _ in scalars["loss/train"]] == [100, 200, 300]  # step 0 has no training loss
 
-    board = out / "tensorboard"
+    board = out  # the projector looks beside the run's event stream
     config = text_format.Parse((board / "projector_config.pbtxt").read_text(), ProjectorConfig())
     (embedding,) = config.embeddings
     assert embedding.tensor_name == "h (step 300)"

@@ -13,7 +13,7 @@ import pickle
 import re
 import socket
 import uuid
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Self
 
@@ -348,7 +348,7 @@ class RunDir(RunView):
         self.write_config(replace(cfg, sessions=[*cfg.sessions, provenance.session(device, threads, **done)]))
 
     def _clear(self) -> None:
-        for name in (CONFIG, METRICS, CHECKPOINT, PREVIOUS, STATUS):
+        for name in (CONFIG, METRICS, CHECKPOINT, PREVIOUS, STATUS, tensorboard.EVENTS, tensorboard.PROJECTOR):
             self._delete(name)
         for sub in SUBFOLDERS:
             folder = self.store.child(sub)
@@ -386,13 +386,14 @@ class RunDir(RunView):
         for name, value in extra.items():
             self._write(array_file(name, step), _npy_bytes(value), sub=EMBEDDINGS)
 
-    def write_tensorboard(self, row: dict[str, Any], h: np.ndarray, p: np.ndarray) -> None:
-        """TensorBoard's view of an evaluation (train/tensorboard.py): its scalars, and h as the
-        projector's embedding."""
+    def write_tensorboard(self, rows: list[dict[str, Any]], h: np.ndarray, p: np.ndarray) -> None:
+        """TensorBoard's view of the run so far (train/tensorboard.py): its terms and every
+        evaluation's scalars as one stream, and h of the last as the projector's embedding."""
         self.store.child(tensorboard.FOLDER).make()
-        self._write(tensorboard.event_file(row["step"]), tensorboard.evaluation_events(row), sub=tensorboard.FOLDER)
-        for name, data in tensorboard.projector_files(h, p, row["step"]).items():
-            self._write(name, data, sub=tensorboard.FOLDER)
+        self._write(tensorboard.EVENTS, tensorboard.run_events(asdict(self.config), rows))
+        for path, data in tensorboard.projector_files(h, p, rows[-1]["step"]).items():
+            sub, _, name = path.rpartition("/")
+            self._write(name, data, sub=sub or None)
 
     def write_evaluation(
         self,
@@ -410,7 +411,7 @@ class RunDir(RunView):
         step = rows[-1]["step"]
         extra = {PREDICTED: pred} | ({TRUE: true} if true is not None else {})
         self.write_embeddings(step, h, p, extra)
-        self.write_tensorboard(rows[-1], h, p)
+        self.write_tensorboard(rows, h, p)
         self.write_metrics(rows)
         self.save_checkpoint(checkpoint, keep_previous)
         self.set_status("running", step)
@@ -424,11 +425,10 @@ class RunDir(RunView):
             match = EVALUATION_FILE.fullmatch(name)
             if match and int(match["step"]) > step:
                 self._delete(name, sub=EMBEDDINGS)
-        board = self.store.child(tensorboard.FOLDER)
-        board.remove_partials()
-        for name in board.list("events.out.tfevents.*"):
-            if int(name.split(".")[3]) > step:
-                self._delete(name, sub=tensorboard.FOLDER)
+        self.store.child(tensorboard.FOLDER).remove_partials()
+        if self.store.exists(tensorboard.EVENTS):  # the stream again, without the evaluations dropped
+            rows = [row for row in self.metrics() if row["step"] <= step]
+            self._write(tensorboard.EVENTS, tensorboard.run_events(asdict(self.config), rows))
 
     # -- checkpoints --------------------------------------------------------------------------
     def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:

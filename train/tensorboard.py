@@ -1,16 +1,20 @@
-"""TensorBoard files of a run, so that `tensorboard --logdir runs/` follows every run of a study
-while it trains (and W&B or MLflow import them: README, "Watching training").
+"""TensorBoard's view of a run, so that `tensorboard --logdir runs/` follows every run of a study
+while it trains, compares a grid in its HParams tab (and W&B or MLflow import them: README,
+"Watching training").
 
-Each evaluation is one event file, `events.out.tfevents.<step>.smspace`, holding its scalars:
-names sort by step, which is the order TensorBoard reads a folder in, and a file is written once,
-whole, through the run's store (a folder or object storage; nothing is appended). The learned h of
-the latest evaluation is the projector's embedding, with p (and the step) as its metadata.
+A run is one event stream, `events.out.tfevents.smspace` in the run folder itself (so TensorBoard
+names the run after its folder): the run's terms as an HParams session, then every evaluation's
+scalars in step order. The whole stream is written again at each evaluation from the metrics
+table, through the run's store (a folder or object storage; nothing is appended), so a resume that
+trims evaluations trims the stream with them. The learned h of the latest evaluation is the
+projector's embedding (its data in `tensorboard/`), with p (and the step) as its metadata.
 Written with tensorboardX (small: protobuf only); tensorboard itself is only needed to look.
 """
 
 from __future__ import annotations
 
 import io
+import json
 import math
 import struct
 import time
@@ -19,9 +23,10 @@ from typing import Any
 import numpy as np
 from tensorboardX.proto.event_pb2 import Event
 from tensorboardX.record_writer import masked_crc32c
-from tensorboardX.summary import scalar
+from tensorboardX.summary import hparams, scalar
 
-FOLDER = "tensorboard"
+EVENTS = "events.out.tfevents.smspace"  # the run's one stream; TensorBoard reads any name holding "tfevents"
+FOLDER = "tensorboard"  # the projector's data
 TENSORS, METADATA, PROJECTOR = "tensors.tsv", "metadata.tsv", "projector_config.pbtxt"
 SCALARS = {  # tag: metrics column
     "loss/eval": "eval_loss",
@@ -30,10 +35,10 @@ SCALARS = {  # tag: metrics column
     "space/D_metric": "d_metric",
     "lr": "lr",
 }
-
-
-def event_file(step: int) -> str:
-    return f"events.out.tfevents.{step:012d}.smspace"
+HPARAMS = (  # the terms a grid varies, as the HParams tab's columns
+    "setup", "mode", "seed", "n_h", "model", "model_params", "precision", "steps", "batch_size",
+    "lr_start", "lr_end", "encoder_layers", "predictor_layers", "dataset_id",
+)  # fmt: skip
 
 
 def _record(data: bytes) -> bytes:
@@ -42,21 +47,46 @@ def _record(data: bytes) -> bytes:
     return header + struct.pack("<I", masked_crc32c(header)) + data + struct.pack("<I", masked_crc32c(data))
 
 
-def evaluation_events(row: dict[str, Any], wall_time: float | None = None) -> bytes:
-    """The event file of one evaluation (a metrics row): a version record, then one scalar per
-    metric that has a finite value (the training loss of step 0 is not one)."""
-    wall = time.time() if wall_time is None else wall_time
-    events = [Event(wall_time=wall, step=row["step"], file_version="brain.Event:2")]
-    for tag, column in SCALARS.items():
-        value = row.get(column)
-        if value is not None and math.isfinite(value):
-            events.append(Event(wall_time=wall, step=row["step"], summary=scalar(tag, float(value))))
+def hparam_values(terms: dict[str, Any]) -> dict[str, str | float | bool]:
+    """The run's terms as HParams values: numbers stay numbers (the tab sorts and plots them),
+    lists and objects become their JSON text (one value per distinct network)."""
+    values: dict[str, str | float | bool] = {}
+    for key in HPARAMS:
+        value = terms.get(key)
+        if isinstance(value, bool | str):
+            values[key] = value
+        elif isinstance(value, int | float):
+            values[key] = float(value)
+        elif value is not None:
+            values[key] = json.dumps(value, sort_keys=True, separators=(",", ":"))
+    return values
+
+
+def run_events(terms: dict[str, Any], rows: list[dict[str, Any]], now: float | None = None) -> bytes:
+    """The run's event stream: a version record, its HParams session (its terms), then one scalar
+    per metric with a finite value (step 0 has no training loss) for each evaluation, in step
+    order. Wall times count back from `now` by the recorded elapsed training time."""
+    now = time.time() if now is None else now
+    last = rows[-1]["elapsed_s"] if rows else 0.0
+    start = now - last
+    _, session_start, _ = hparams(hparam_values(terms), {})
+    events = [
+        Event(wall_time=start, step=0, file_version="brain.Event:2"),
+        Event(wall_time=start, step=0, summary=session_start),
+    ]
+    for row in rows:
+        wall = start + row["elapsed_s"]
+        for tag, column in SCALARS.items():
+            value = row.get(column)
+            if value is not None and math.isfinite(value):
+                events.append(Event(wall_time=wall, step=row["step"], summary=scalar(tag, float(value))))
     return b"".join(_record(e.SerializeToString()) for e in events)
 
 
 def projector_files(h: np.ndarray, p: np.ndarray, step: int) -> dict[str, bytes]:
     """The projector's embedding: h of the regular sampling, each point's p and the step as
-    metadata (colour by p_x or p_y to see whether h laid out space)."""
+    metadata (colour by p_x or p_y to see whether h laid out space). The config lies beside the
+    event stream (the projector looks for it in the run's folder), its data in FOLDER."""
     tensors = io.StringIO()
     np.savetxt(tensors, np.asarray(h, dtype=np.float64), delimiter="\t", fmt="%.7g")
     meta = io.StringIO()
@@ -67,8 +97,9 @@ def projector_files(h: np.ndarray, p: np.ndarray, step: int) -> dict[str, bytes]
     config = (
         "embeddings {\n"
         f'  tensor_name: "h (step {step})"\n'
-        f'  tensor_path: "{TENSORS}"\n'
-        f'  metadata_path: "{METADATA}"\n'
+        f'  tensor_path: "{FOLDER}/{TENSORS}"\n'
+        f'  metadata_path: "{FOLDER}/{METADATA}"\n'
         "}\n"
     )
-    return {TENSORS: tensors.getvalue().encode(), METADATA: meta.getvalue().encode(), PROJECTOR: config.encode()}
+    return {f"{FOLDER}/{TENSORS}": tensors.getvalue().encode(), f"{FOLDER}/{METADATA}": meta.getvalue().encode(),
+            PROJECTOR: config.encode()}  # fmt: skip
