@@ -21,6 +21,7 @@ import numpy as np
 from smspace import schemas
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError, one_line
+from smspace.common.main_guard import refuse_unguarded
 from smspace.datagen.executors import ExecutorOptions, open_part_writers
 from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
 from smspace.datagen.setups import get_setup, setup_plugin
@@ -314,6 +315,8 @@ def generate(
     record = plugin.record() if plugin is not None else None  # a changed plugin is a changed config
     world_seeds = list(world_seeds)
     options = options or ExecutorOptions(workers=workers)
+    if executor == "local" and options.workers > 1:
+        refuse_unguarded(f"smspace.generate(workers={options.workers})")
     with contextlib.ExitStack() as held:
         probe = world_seeds[0] if world_seeds else None  # the setup contract on a probe batch, before any write
         run_parts = held.enter_context(open_part_writers(executor, setup, options, probe))

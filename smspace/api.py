@@ -16,6 +16,7 @@ from smspace.lake.dataset import lake_store as _open_store
 from smspace.lake.store import Store
 from smspace.lake.transitions import parse_modes
 from smspace.train.run_dir import RunView
+from smspace.words import python_errors
 
 if TYPE_CHECKING:
     from smspace.train.engine import Sink
@@ -45,11 +46,13 @@ class Lake:
         return f"Lake({self.url!r})"
 
 
+@python_errors
 def open_lake(where: str | Path | Store | None = None) -> Lake:
     """A lake by folder or URL (None: $SMSPACE_LAKE, else data/lake)."""
     return Lake(where)
 
 
+@python_errors
 def load_dataset(ref: str | Path | Dataset, lake: Lake | str | Path | None = None) -> Dataset:
     """A dataset by id in a lake, or by its folder or URL: its manifest, and reads into numpy."""
     if isinstance(ref, Dataset):
@@ -58,6 +61,7 @@ def load_dataset(ref: str | Path | Dataset, lake: Lake | str | Path | None = Non
     return Dataset.open(str(ref), store)
 
 
+@python_errors
 def generate(
     setup: str,
     modes: str | list[str] = "all",
@@ -86,6 +90,7 @@ class Run(RunView):
         return f"Run({self.url!r})"
 
 
+@python_errors
 def fit(
     dataset: str | Path | Dataset,
     out: str | Path | None = None,
@@ -114,6 +119,7 @@ def fit(
     return Run(run.store)
 
 
+@python_errors
 def resume(run: str | Path | RunView, steps: int | None = None, sinks: Sequence[Sink] = ()) -> Run:
     """Continue a run from its last checkpoint (`steps` may extend it: train/terms.py)."""
     from smspace.train.config import TrainConfig
@@ -128,42 +134,51 @@ def resume(run: str | Path | RunView, steps: int | None = None, sinks: Sequence[
     return Run(started.store)
 
 
+@python_errors
 def open_run(where: str | Path | RunView) -> Run:
     """An existing run folder (a folder or an fsspec URL), to read its config, metrics and h."""
     return Run.open(where.store if isinstance(where, RunView) else where)
 
 
+@python_errors
 def run_study(
     study_file: str | Path,
     out: str | Path | None = None,
     lake: Lake | str | Path | None = None,
     workers: int | None = None,
     overrides: Sequence[str] = (),
+    overwrite: bool = False,
 ) -> list[Run]:
     """Run (or resume, or extend) a study file (docs/STUDIES.md), as `smtrain sweep STUDY.toml`;
-    `overrides` as the command's (["train.steps=2000", "grid.n_h=[3,5]"])."""
+    `overrides` as the command's (["train.steps=2000", "grid.n_h=[3,5]"]); `overwrite` replaces
+    runs made with other terms. Workers are spawned processes that import your script again: call
+    it under `if __name__ == "__main__":` (docs/API.md)."""
     from smspace.study.runner import run_study as run
 
     store = lake.store if isinstance(lake, Lake) else open_lake(lake).store
     where = None if out is None else str(out)
-    return [Run(r.store) for r in run(study_file, store, where, workers=workers, overrides=overrides)]
+    runs = run(study_file, store, where, overwrite=overwrite, workers=workers, overrides=overrides)
+    return [Run(r.store) for r in runs]
 
 
+@python_errors
 def dry_run(
     study_file: str | Path,
     out: str | Path | None = None,
     lake: Lake | str | Path | None = None,
     workers: int | None = None,
     overrides: Sequence[str] = (),
+    overwrite: bool = False,
 ) -> list[str]:
     """What a study file would generate, train, store and take, as `smtrain sweep STUDY.toml
     --dry-run` prints it, one line each; writes nothing."""
     from smspace.study.runner import dry_run as plan
 
     store = lake.store if isinstance(lake, Lake) else open_lake(lake).store
-    return plan(study_file, store, None if out is None else str(out), workers=workers, overrides=overrides)
+    return plan(study_file, store, None if out is None else str(out), workers, overwrite, overrides)
 
 
+@python_errors
 def report(runs: Sequence[str | Path | RunView], out: str | Path) -> Path:
     """The figures, tables and report.md of runs (run folders or study folders), as `smtrain
     report`; returns report.md, which opens with the notes the command prints (runs left out,

@@ -20,6 +20,7 @@ import torch
 from smspace.common import plugins
 from smspace.common.cli import DEFAULT_MAX_ENSEMBLE, default_workers
 from smspace.common.errors import SmspaceError, one_line
+from smspace.common.main_guard import refuse_unguarded
 from smspace.common.progress import duration
 from smspace.datagen.generate import check_disk
 from smspace.datagen.parts import world_for
@@ -103,6 +104,8 @@ def run_study(
     gen_workers = gen_workers or study.run.get("gen_workers", workers)
     executor = executor or study.run.get("executor", "local")
     max_ensemble = study.run.get("max_ensemble", DEFAULT_MAX_ENSEMBLE)
+    if executor == "local" and max(workers, gen_workers) > 1:
+        refuse_unguarded(f"smspace.run_study(workers={workers})")
     check_apart(out, lake)
     combos = combinations(study, out)
     checked = [_checked(path, c, overwrite) for c in combos]  # every refusal before any write

@@ -285,3 +285,60 @@ def test_report_and_dry_run_from_python(grid_study, tmp_path):
     lines = smspace.dry_run(study, tmp_path / "o", lake=tmp_path / "lake", overrides=["train.steps=30"])
     assert lines[-1] == "dry run: nothing was written" and "8 combination(s)" in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+TINY = """
+[study]
+setup = "grid"
+modes = ["MM"]
+worlds = 2
+seed = 5
+transitions = 1000
+[train]
+steps = 20
+eval_every = 10
+batch_size = 50
+"""
+
+
+def test_a_script_that_starts_workers_without_a_main_guard_is_refused_before_any_write(tmp_path):
+    """The script of docs/API.md runs with workers=2; the same lines without the guard are refused
+    in one line naming the script's line, and nothing is written (neither runs nor datasets)."""
+    import re
+    import sys
+
+    from .conftest import ROOT
+
+    script = re.search(r"```py\n(# study.py.*?)```", (ROOT / "docs" / "API.md").read_text(), flags=re.S)[1]
+    (tmp_path / "tiny.toml").write_text(TINY)
+    (tmp_path / "grid.toml").write_text(GRID_STUDY)
+    unguarded = script.replace('if __name__ == "__main__":', "if True:").replace("tiny.toml", "grid.toml")
+    (tmp_path / "study.py").write_text(unguarded)
+    refused = run_cmd(sys.executable, "study.py", cwd=tmp_path, timeout=300)
+    assert refused.returncode == 1
+    last = refused.stderr.strip().splitlines()[-1]
+    assert last.endswith("study.py:5: smspace.run_study(workers=2) starts worker processes, which import this "
+                         'script again and would run it again; put the call under `if __name__ == "__main__":` '
+                         '(docs/API.md, "Scripts that start workers")'), last  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["grid.toml", "study.py", "tiny.toml"]
+    (tmp_path / "study.py").write_text(script)
+    done = run_cmd(sys.executable, "study.py", cwd=tmp_path, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "2"
+
+
+def test_errors_raised_to_python_name_the_python_argument(grid_study, tmp_path):
+    import smspace
+
+    run = next(grid_study.glob("*/*/config.json")).parent
+    with pytest.raises(smspace.SmspaceError) as refused:
+        smspace.fit(RunDir.open(run).config.dataset, out=run, steps=20)
+    assert "call smspace.resume(run) to continue it or overwrite=True" in str(refused.value), refused.value
+    assert "--" not in str(refused.value)
+    with pytest.raises(smspace.SmspaceError, match=r"^n_h must be an integer in 1\.\.65536, got 0$"):
+        smspace.fit(RunDir.open(run).config.dataset, out=tmp_path / "r", n_h=0)
+    changed = tmp_path / "grid.toml"
+    changed.write_text(GRID_STUDY.replace("steps = 60", "steps = 60\nbatch_size = 40").replace("batch_size = 50\n", ""))
+    with pytest.raises(smspace.SmspaceError) as other_terms:
+        smspace.run_study(changed, out=grid_study, lake=grid_study.parent / "lake", workers=1)
+    assert "overwrite=True" in str(other_terms.value) and "--" not in str(other_terms.value), other_terms.value
