@@ -8,26 +8,21 @@ OUT itself without a grid, else in OUT/<key=value,...>/, each an ordinary sweep 
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import torch
-
-from smspace.common import plugins
 from smspace.common.cli import DEFAULT_MAX_ENSEMBLE, default_workers
 from smspace.common.errors import SmspaceError, one_line
 from smspace.common.main_guard import refuse_unguarded
 from smspace.common.progress import duration
 from smspace.datagen.generate import check_disk
-from smspace.datagen.parts import world_for
-from smspace.datagen.setups import draw_transitions, get_setup, setup_plugin
-from smspace.datagen.setups.contract import check_world
+from smspace.datagen.setups import get_setup
 from smspace.lake.manifest import dataset_id
 from smspace.lake.store import Store, open_store
+from smspace.study import budget
+from smspace.study.budget import SetupProbe, makespan
 from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study, read_study
 from smspace.study.sweep import (
     SweepPlan,
@@ -189,23 +184,6 @@ def study_changes(study: StudyFile, out: Store, overwrite: bool) -> list[str]:
 # --- the dry run --------------------------------------------------------------------------------
 
 
-@dataclass
-class SetupProbe:
-    """What a dry run measures of one setup, once: its generator's rate and its shapes."""
-
-    gen_rate: float
-    n_sensor: int
-    n_regular: int
-
-    @classmethod
-    def of(cls, setup: str, seed: int, mode: str) -> SetupProbe:
-        world = world_for(setup, seed)  # built once, guarded: a plugin's error is one line
-        check_world(get_setup(setup), world, seed)  # what generation would refuse, refused here
-        with plugins.guarded(setup_plugin(setup), f"drawing transitions of world {seed} ({mode})"):
-            rate = _generation_rate(world, mode)
-        return cls(rate, int(np.prod(world.sensor_shape)), len(world.regular_sampling()[0]))
-
-
 def dry_run(
     path: Path | str,
     lake: Store,
@@ -241,6 +219,7 @@ def plan_lines(
     ]
     lines += study_changes(study, out, overwrite)
     probes = {setup: SetupProbe.of(setup, study.seed, study.modes[0]) for setup in setups}
+    spawn_s = budget.process_start_s()  # this command's own start, and each spawned worker's
     gen_s = gen_bytes = 0.0
     for setup in setups:
         spec, probe = get_setup(setup), probes[setup]
@@ -248,15 +227,18 @@ def plan_lines(
         ids = [dataset_id(setup, seed, mode) for seed in study.world_seeds for mode in study.modes]
         missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
         parts = len(missing) * -(-n // spec.default_shard_size)
-        seconds = len(missing) * n / probe.gen_rate / max(1, min(gen_workers, parts))
+        lanes = max(1, min(gen_workers, parts))
+        seconds = len(missing) * n / probe.gen_rate / lanes + (spawn_s if parts and lanes > 1 else 0.0)
         gen_s += seconds
-        gen_bytes += len(missing) * n * spec.bytes_per_transition
+        gen_bytes += len(missing) * n * probe.bytes_per_transition
         lines.append(
             f"datasets of {setup}: {len(ids)}, {len(ids) - len(missing)} in {lake.url}, {len(missing)} to generate "
-            f"({len(missing) * n} transitions, about {_size(len(missing) * n * spec.bytes_per_transition)}, "
-            f"{duration(seconds)} at {probe.gen_rate:.4g} transitions/s per worker measured now)"
+            f"({len(missing) * n} transitions, about {_size(len(missing) * n * probe.bytes_per_transition)} at "
+            f"{probe.bytes_per_transition:.3g} bytes each, {duration(seconds)} at {probe.gen_rate:.4g} transitions/s "
+            "per worker, both measured now)"
         )
-    total_s, total_bytes = 0.0, 0
+    total_bytes = 0
+    ensembles_s: list[float] = []
     counts = {"new": 0, "resume": 0, "finished": 0}
     for combo in combos:
         setup = combo.plan.setup
@@ -276,24 +258,38 @@ def plan_lines(
         run_steps = sum(template.steps - step for state, step in states.values() if state != "finished")
         recorded, new = planned_ensembles(record, list(states), max_ensemble, workers)
         todo = [g for g in (recorded + new) if any(states[name][0] != "finished" for name in g)]
-        size = max((len(g) for g in todo), default=1)  # the groups the sweep will train, recorded ones included
-        per_step = _ensemble_step_s(template, spec.n_motor, probe.n_sensor, size) / size
-        seconds = run_steps * per_step / max(1, min(workers, len(todo)))
-        total_s += seconds
-        evaluations = template.steps // template.eval_every + 2
+        slower = budget.contention(min(workers, len(todo)), template.threads)
+        costs = {size: budget.ensemble_cost(template, spec.n_motor, probe, size) for size in {len(g) for g in todo}}
+        combo_s = []
+        for group in todo:
+            start = min(states[name][1] for name in group)  # an ensemble resumes at its members' last common step
+            left = template.steps - start
+            evaluations = left // template.eval_every + (start == 0) + (left % template.eval_every > 0)
+            cost = costs[len(group)]
+            combo_s.append(
+                (spawn_s if workers > 1 else 0.0)
+                + slower * ((template.steps - start) * cost.step_s + evaluations * cost.evaluation_s)
+            )
+        ensembles_s += combo_s
         params = parameter_count(template, spec.n_motor, probe.n_sensor)
-        per_run = 2 * 12 * params + evaluations * 4 * (probe.n_regular * (template.n_h + 2) + 16 * probe.n_sensor)
+        per_run = 2 * 12 * params + (template.steps // template.eval_every + 2) * 4 * (
+            probe.n_regular * (template.n_h + 2) + 16 * probe.n_sensor
+        )
         total_bytes += per_run * sum(state == "new" for state, _ in states.values())
         label = folder_name(combo.values) or "(no grid)"
+        sizes = "/".join(str(n) for n in sorted({len(g) for g in todo})) or "-"
+        step_ms = max((c.step_s / size for size, c in costs.items()), default=0.0) * 1e3
         lines.append(
-            f"  {label}: {len(states)} runs, {run_steps} run-steps to train, {per_step * 1e3:.3g} ms per run-step "
-            f"in ensembles of {size} measured now, {duration(seconds)} on {workers} worker(s)"
+            f"  {label}: {len(states)} runs, {run_steps} run-steps to train in {len(todo)} ensemble(s) of {sizes} "
+            f"({step_ms:.3g} ms per run-step measured now), {duration(sum(combo_s))} of worker time"
         )
+    total_s = makespan(ensembles_s, workers)
     _refuse_what_run_folders_cannot_hold(out, total_bytes)
     lines.append(f"runs: {counts['new']} new, {counts['resume']} to resume, {counts['finished']} finished")
     lines.append(f"disk: about {_size(gen_bytes)} in the lake and {_size(total_bytes)} of run folders")
     lines.append(
-        f"time: about {duration(gen_s + total_s)} ({duration(gen_s)} generating, {duration(total_s)} training)"
+        f"time: about {duration(spawn_s + gen_s + total_s)} ({duration(gen_s)} generating, {duration(total_s)} "
+        f"training on {workers} worker(s), {duration(spawn_s)} starting)"
     )
     lines.append("dry run: nothing was written")
     return lines
@@ -327,46 +323,6 @@ def _run_state(out: Store, name: str, steps: int, overwrite: bool) -> tuple[str,
     if step == 0:
         return "new", 0
     return ("finished", step) if step >= steps else ("resume", step)
-
-
-def _generation_rate(world, mode: str, n: int = 512) -> float:
-    """Transitions per second one worker draws (rendered, for a camera), timed on a small batch."""
-    rng = np.random.default_rng(0)
-    draw_transitions(world, mode, rng, 16)  # the first draw pays for set-up
-    t = time.perf_counter()
-    draw_transitions(world, mode, rng, n)
-    return n / max(time.perf_counter() - t, 1e-9)
-
-
-def _ensemble_step_s(template: TrainConfig, n_motor: int, n_sensor: int, runs: int, steps: int = 10) -> float:
-    """Seconds of one training step of an ensemble of `runs` of this network in its precision
-    (eager: a compiled step would cost its compilation here), on random batches, with the threads
-    a run is given."""
-    from smspace.train.engine import EnsembleLearner, EvalData
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(template.threads)
-    try:
-        cpu = torch.device("cpu")
-
-        def rand(*shape: int) -> torch.Tensor:
-            return torch.rand(*shape) * 2 - 1
-
-        cfgs = [replace(template, seed=i, compile=False) for i in range(runs)]
-        data = [EvalData(rand(1, n_motor), np.zeros((1, 2)), *(rand(1, k) for k in (n_motor, n_sensor) * 2))] * runs
-        learner = EnsembleLearner(cfgs, n_motor, n_sensor, data, cpu)  # the sweep's own step
-        batch = tuple(rand(template.batch_size, k) for k in (n_motor, n_sensor) * 2)
-
-        def step() -> None:
-            learner.train_step([batch] * runs)
-
-        step()
-        t = time.perf_counter()
-        for _ in range(steps):
-            step()
-        return (time.perf_counter() - t) / steps
-    finally:
-        torch.set_num_threads(before)
 
 
 def _size(n: float) -> str:

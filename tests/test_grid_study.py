@@ -273,6 +273,25 @@ def test_a_sweep_given_by_flags_has_a_dry_run_too(tmp_path):
     assert not lake.exists() and not out.exists()
 
 
+def test_the_dry_run_measures_what_a_plugin_setup_stores_per_transition(grid_study, tmp_path):
+    """The lake estimate used a fixed 16 bytes per transition for any plugin setup (625 KiB said,
+    3.5 MB written); it is measured on the setup's own encoded transitions now."""
+    import re
+
+    (tmp_path / "grid.toml").write_text(GRID_STUDY)
+    dry = run_cmd(
+        "smtrain", "sweep", tmp_path / "grid.toml", "--dry-run", "--lake", tmp_path / "lake", "--out", tmp_path / "o"
+    )
+    assert dry.returncode == 0, dry.stderr
+    for setup in ("grid", "line"):
+        said = re.search(rf"datasets of {setup}: .* at ([0-9.e+]+) bytes each", dry.stdout)
+        assert said, dry.stdout
+        shards = [p for p in (grid_study.parent / "lake").glob(f"{setup}-seed*/shard-*.mcap")]
+        written = sum(p.stat().st_size for p in shards) / (2 * 2 * 3000)  # two worlds, two modes
+        assert 0.5 * written < float(said[1]) < 2 * written, (setup, said[1], written)
+    assert "time: about" in dry.stdout and "starting)" in dry.stdout
+
+
 def test_report_and_dry_run_from_python(grid_study, tmp_path):
     import smspace
 

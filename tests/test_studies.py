@@ -102,7 +102,7 @@ def test_a_dry_run_budgets_the_study_and_writes_nothing(tmp_path):
     result = smtrain("sweep", path, "--dry-run", "--lake", tmp_path / "lake", "--out", tmp_path / "out")
     assert result.returncode == 0, result.stderr
     out = result.stdout
-    assert "1 to generate (3000 transitions" in out and "transitions/s per worker measured now" in out
+    assert "1 to generate (3000 transitions" in out and "transitions/s per worker, both measured now" in out
     assert "n_h=3: 1 runs, 200 run-steps to train" in out and "n_h=4: 1 runs" in out
     assert "runs: 2 new, 0 to resume, 0 finished" in out and "disk: about" in out and "time: about" in out
     assert not (tmp_path / "lake").exists() and not (tmp_path / "out").exists()
@@ -181,6 +181,6 @@ def test_a_dry_run_plans_what_the_sweep_will_do_with_the_recorded_ensembles(tmp_
     path.write_text(study(300, 3))
     dry = smtrain("sweep", path, "--dry-run", "--lake", lake, "--out", out)
     assert dry.returncode == 0, dry.stderr
-    assert "in ensembles of 1 measured now" in dry.stdout  # the recorded groups, not one group of 3
+    assert "in 3 ensemble(s) of 1 (" in dry.stdout  # the recorded groups, not one group of 3
     assert "runs: 1 new, 2 to resume, 0 finished" in dry.stdout
     assert "3 runs, 500 run-steps to train" in dry.stdout  # 2 x 100 resumed + 300 afresh
