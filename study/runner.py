@@ -228,7 +228,9 @@ def plan_lines(
         missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
         parts = len(missing) * -(-n // spec.default_shard_size)
         lanes = max(1, min(gen_workers, parts))
-        seconds = len(missing) * n / probe.gen_rate / lanes + (spawn_s if parts and lanes > 1 else 0.0)
+        worlds_to_build = len({i.rsplit("-", 1)[0] for i in missing})  # each worker builds the worlds it draws from
+        seconds = len(missing) * n / probe.gen_rate / lanes + -(-worlds_to_build // lanes) * probe.world_s
+        seconds += spawn_s if lanes > 1 else 0.0  # a pool's start
         gen_s += seconds
         gen_bytes += len(missing) * n * probe.bytes_per_transition
         lines.append(
@@ -266,10 +268,7 @@ def plan_lines(
             left = template.steps - start
             evaluations = left // template.eval_every + (start == 0) + (left % template.eval_every > 0)
             cost = costs[len(group)]
-            combo_s.append(
-                (spawn_s if workers > 1 else 0.0)
-                + slower * ((template.steps - start) * cost.step_s + evaluations * cost.evaluation_s)
-            )
+            combo_s.append(slower * (left * cost.step_s + evaluations * cost.evaluation_s))
         ensembles_s += combo_s
         params = parameter_count(template, spec.n_motor, probe.n_sensor)
         per_run = 2 * 12 * params + (template.steps // template.eval_every + 2) * 4 * (
@@ -283,7 +282,8 @@ def plan_lines(
             f"  {label}: {len(states)} runs, {run_steps} run-steps to train in {len(todo)} ensemble(s) of {sizes} "
             f"({step_ms:.3g} ms per run-step measured now), {duration(sum(combo_s))} of worker time"
         )
-    total_s = makespan(ensembles_s, workers)
+    pool = workers > 1 and len(ensembles_s) > 1  # a pool of spawned workers, each started once; else this process
+    total_s = makespan(ensembles_s, workers) + (spawn_s if pool else 0.0)
     _refuse_what_run_folders_cannot_hold(out, total_bytes)
     lines.append(f"runs: {counts['new']} new, {counts['resume']} to resume, {counts['finished']} finished")
     lines.append(f"disk: about {_size(gen_bytes)} in the lake and {_size(total_bytes)} of run folders")
