@@ -226,6 +226,8 @@ def curves_figure(study: Study, path: Path) -> None:
         ax.set_title(label)
         if key != "d_metric":
             ax.set_yscale("log")
+        else:  # values that barely move read as values, not as "1e-7 + 3.768e-2" offsets
+            ax.ticklabel_format(axis="y", useOffset=False)
         ax.grid(alpha=0.3, which="both")
         ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4), useMathText=True)
     fig.suptitle(f"{study.name}: {study.label}", fontsize=13)
@@ -277,6 +279,8 @@ def comparison_figure(studies: list[Study], variable: str, path: Path) -> None:
             ax.set_xticks(range(len(values)), [_shown(v)[:28] for v in parsed], rotation=20, ha="right", fontsize=8)
         if key != "d_metric":
             ax.set_yscale("log")
+        else:
+            ax.ticklabel_format(axis="y", useOffset=False)
         ax.set_xlabel(variable)
         ax.set_ylabel(AXIS_LABELS[key])
         ax.set_title(f"{label} at the last step")
@@ -330,7 +334,7 @@ def projection_figure(run: RunData, step: int, path: Path) -> None:
         ax.plot([a[0], b[0]], [a[1], b[1]], color="0.6", linewidth=0.5)
     ax.scatter(p[:, 0], p[:, 1], facecolors="none", edgecolors=colours, s=60, linewidths=1.2, label="p (true position)")
     ax.scatter(h_hat[:, 0], h_hat[:, 1], c=colours, s=10, label="ĥ (best affine image of h)")
-    ax.set_aspect("equal")
+    ax.set_aspect("equal", adjustable="datalim")  # a setup whose positions lie on a line keeps a full-size box
     ax.set_xlabel(f"p_x ({unit})")
     ax.set_ylabel(f"p_y ({unit})")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
