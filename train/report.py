@@ -556,7 +556,6 @@ def markdown_report(
     notes: list[str],
     out: Path,
     compared: Sequence[Path] = (),
-    variables: Sequence[str] = (),
 ) -> Path:
     """report.md: one page per report, the comparison of the studies, then the tables and the
     figures of every study. Image links are plain file names (train/report.py, safe_name)."""
@@ -566,8 +565,11 @@ def markdown_report(
     lines += [f"> {note.removeprefix('report: ')}" for note in notes] + ([""] if notes else [])
     if compared:
         lines += ["## The studies compared", ""]
-        if variables:
-            lines += [f"Grid variables (columns of final.csv and runs.csv): {', '.join(variables)}.", ""]
+        varied = comparison_variables(list(studies))
+        lines += [
+            f"The studies differ in {', '.join(varied)}: each a column of final.csv and runs.csv, each a figure.",
+            "",
+        ]
         for figure in compared:
             lines += [f"![{figure.stem}]({figure.name})", ""]
     for study in studies:
@@ -626,7 +628,7 @@ def report(paths: list[Path], out: Path) -> tuple[list[Path], list[str]]:
         table += final_table(study, variables)
     write_tables(studies, table, out, variables)
     notes = [f"report: left out {line}" for line in left_out] + notices(studies)
-    page = markdown_report(studies, table, figures, notes, out, compared, variables)
+    page = markdown_report(studies, table, figures, notes, out, compared)
     files = [*compared, *written, out / "final.csv", out / "final.md", out / "runs.csv", page]
     for name in sorted(earlier - {f.name for f in files}):  # an earlier report's figures of studies gone now
         (out / name).unlink(missing_ok=True)
