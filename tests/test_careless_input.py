@@ -311,6 +311,6 @@ def test_a_bound_declared_once_holds_for_flags_study_files_and_the_api(tmp_path,
     study.write_text(f'[study]\nsetup = "grid"\nmodes = ["MM"]\ntransitions = 3000\n[train]\n{field.name} = {value}\n')
     line = one_error(run_cmd("smtrain", "sweep", study, "--dry-run", "--lake", tmp_path / "lake"))
     assert f"train.{field.name}" in line and (str(value) in line or field.name in NOT_TRAINABLE), line
-    with pytest.raises(smspace.SmspaceError, match=f"{flag} must be an integer in"):
+    with pytest.raises(smspace.SmspaceError, match=f"^{field.name} must be an integer in"):  # its Python name
         smspace.fit("grid-seed0-MM", lake=SAMPLES, out=out, **{field.name: value})
     assert not out.exists() and not (tmp_path / "lake").exists()
