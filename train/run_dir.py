@@ -254,6 +254,7 @@ class RunDir(RunView):
         self._versions: dict[str, str | None] | None = None
         self._lost = False  # another process took the folder over: this one writes nothing more
         self._last_checkpoint: bytes | None = None  # the bytes this process last wrote or resumed from
+        self._terms: dict[str, Any] | None = None  # the config this process trains by, once read or written
 
     def claim(self) -> None:
         """Become the one process training this run; another one gets a clear refusal. Local
@@ -338,6 +339,14 @@ class RunDir(RunView):
 
     def write_config(self, cfg: TrainConfig) -> None:
         self._write(CONFIG, _config_bytes(cfg))
+        self._terms = asdict(cfg)
+
+    def _trained_terms(self) -> dict[str, Any]:
+        """The config this process trains by, read once: read again at every evaluation, a folder
+        another process just cleared would be "not a run folder" instead of a lost write."""
+        if self._terms is None:
+            self._terms = asdict(self.config)
+        return self._terms
 
     def record_session(self, device: str, threads: int) -> None:
         """Add what this training session runs on to config.json (by the process that claimed it),
@@ -390,7 +399,7 @@ class RunDir(RunView):
         """TensorBoard's view of the run so far (train/tensorboard.py): its terms and every
         evaluation's scalars as one stream, and h of the last as the projector's embedding."""
         self.store.child(tensorboard.FOLDER).make()
-        self._write(tensorboard.EVENTS, tensorboard.run_events(asdict(self.config), rows))
+        self._write(tensorboard.EVENTS, tensorboard.run_events(self._trained_terms(), rows))
         for path, data in tensorboard.projector_files(h, p, rows[-1]["step"]).items():
             sub, _, name = path.rpartition("/")
             self._write(name, data, sub=sub or None)
@@ -428,7 +437,7 @@ class RunDir(RunView):
         self.store.child(tensorboard.FOLDER).remove_partials()
         if self.store.exists(tensorboard.EVENTS):  # the stream again, without the evaluations dropped
             rows = [row for row in self.metrics() if row["step"] <= step]
-            self._write(tensorboard.EVENTS, tensorboard.run_events(asdict(self.config), rows))
+            self._write(tensorboard.EVENTS, tensorboard.run_events(self._trained_terms(), rows))
 
     # -- checkpoints --------------------------------------------------------------------------
     def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
