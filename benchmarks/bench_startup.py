@@ -1,8 +1,10 @@
-"""The command line's start-up: `smtrain --help`, `smtrain --version`, `smgen --help` and one Tab
-completion, each run N times in a fresh process (the median is printed, as JSON).
+"""The command line's start-up: `smtrain --help`, `smtrain --version`, `smgen --help`, one Tab
+completion, and `smtrain ls` / `smtrain info` on run folders (a 4-run study trained here first),
+each run N times in a fresh process (the median is printed, as JSON).
 
-torch takes seconds to import; the command line builds its flags without it (train/config.py), so
-these should stay well under a second. Usage: python benchmarks/bench_startup.py [--runs 7]
+torch takes seconds to import; the command line builds its flags without it (train/config.py) and
+reads run folders without it (train/run_dir.py), so these should stay under half a second.
+Usage: python benchmarks/bench_startup.py [--runs 7]
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -29,12 +32,28 @@ COMMANDS = {
 }
 
 
+def run_folders(tmp: Path) -> dict[str, tuple[list[str], dict[str, str]]]:
+    """`ls` and `info` on a small study of this machine's making (2 worlds x MM, MME, 50 steps)."""
+    runs = tmp / "runs"
+    subprocess.run(
+        [str(BIN / "smtrain"), "sweep", "--setup", "grid", "--modes", "MM,MME", "--worlds", "2", "--steps", "50",
+         "--eval-every", "25", "--transitions", "2000", "--lake", str(tmp / "lake"), "--out", str(runs)],
+        capture_output=True, check=True,
+    )  # fmt: skip
+    one = sorted(p for p in runs.iterdir() if p.is_dir())[0]
+    return {
+        "smtrain ls --runs (4 runs)": ([str(BIN / "smtrain"), "ls", "--runs", str(runs)], {}),
+        "smtrain info RUN": ([str(BIN / "smtrain"), "info", str(one)], {}),
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=int, default=7)
     args = ap.parse_args()
     result = {}
-    for name, (cmd, env) in COMMANDS.items():
+    tmp = tempfile.TemporaryDirectory()
+    for name, (cmd, env) in (COMMANDS | run_folders(Path(tmp.name))).items():
         times = []
         for _ in range(args.runs):
             started = time.perf_counter()

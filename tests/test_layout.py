@@ -120,6 +120,31 @@ def test_the_command_line_starts_without_torch():
     assert done.returncode == 0 and done.stdout.strip().splitlines()[-1] == "[]", done.stdout + done.stderr
 
 
+def test_ls_and_info_read_run_folders_without_torch(tmp_path):
+    """`smtrain ls` and `info` took 3 s on a run folder: reading it imported torch (checkpoints)
+    and tensorboardX (the event stream). Both are imported where a checkpoint or stream is
+    written or loaded; reading a folder needs neither."""
+    from .conftest import SAMPLES, smtrain
+
+    runs = tmp_path / "runs"
+    done = smtrain("fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", runs / "one", "--steps", 20, "--eval-every", 10)
+    assert done.exit_code == 0, done.output
+    probe = (
+        "import sys\n"
+        "from smspace.study.cli import main\n"
+        "for args in (['ls', '--runs', sys.argv[1]], ['info', sys.argv[2]]):\n"
+        "    try:\n"
+        "        main(args, standalone_mode=False)\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'tensorboardX'))[:3])\n"
+    )
+    shown = subprocess.run([sys.executable, "-c", probe, str(runs), str(runs / "one")], capture_output=True,
+                           text=True, cwd=ROOT, timeout=120)  # fmt: skip
+    assert shown.returncode == 0 and "MM" in shown.stdout, shown.stdout + shown.stderr
+    assert shown.stdout.strip().splitlines()[-1] == "[]", shown.stdout
+
+
 def test_the_engine_imports_no_run_folder_lake_or_launcher():
     """The training engine is read in one pass: what it trains comes in as members, what it makes
     leaves through sinks; run folders, the lake and the launchers are its callers' business."""

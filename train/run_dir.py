@@ -19,7 +19,6 @@ from typing import Any, Self
 
 import numpy as np
 import pyarrow as pa
-import torch
 
 from smspace.common import provenance
 from smspace.common.errors import SmspaceError
@@ -28,7 +27,6 @@ from smspace.lake import parquet
 from smspace.lake.store import StorageUnreachable, Store, WriteConflict, open_store
 from smspace.train import tensorboard
 from smspace.train.config import TrainConfig
-from smspace.train.precision import compile_decision
 
 CONFIG = "config.json"
 METRICS = "metrics.parquet"
@@ -230,6 +228,8 @@ class RunView:
 
     @staticmethod
     def _loaded(data: bytes, where: str, device: str) -> dict[str, Any]:
+        import torch  # here, not at the top: reading a run folder (ls, info, report) needs no torch
+
         try:
             return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
         except pickle.UnpicklingError as e:  # weights_only refused an object: never load it another way
@@ -351,6 +351,8 @@ class RunDir(RunView):
     def record_session(self, device: str, threads: int) -> None:
         """Add what this training session runs on to config.json (by the process that claimed it),
         with what it does of --compile here (train/precision.py: the decision the steps act on)."""
+        from smspace.train.precision import compile_decision  # imports torch
+
         cfg = self.config
         decided = compile_decision(cfg.compile)
         done = {"compile": decided} if decided is not None else {}
@@ -449,6 +451,8 @@ class RunDir(RunView):
         """The new commit record; `keep_previous`: the one it replaces is kept beside it first, so
         that a member of an ensemble that a kill left one evaluation ahead of the others can be
         rolled back to the step all of them reached (train/fit.py, resume_from_folders)."""
+        import torch
+
         buf = io.BytesIO()
         torch.save(state | {RUN_ID: self.run_id}, buf)
         if keep_previous and self._last_checkpoint is not None:

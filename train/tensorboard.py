@@ -21,9 +21,6 @@ import time
 from typing import Any
 
 import numpy as np
-from tensorboardX.proto.event_pb2 import Event
-from tensorboardX.record_writer import masked_crc32c
-from tensorboardX.summary import hparams, scalar
 
 EVENTS = "events.out.tfevents.smspace"  # the run's one stream; TensorBoard reads any name holding "tfevents"
 FOLDER = "tensorboard"  # the projector's data
@@ -43,6 +40,8 @@ HPARAMS = (  # the terms a grid varies, as the HParams tab's columns
 
 def _record(data: bytes) -> bytes:
     """One TFRecord: length, its masked CRC-32C, the data, its masked CRC-32C."""
+    from tensorboardX.record_writer import masked_crc32c  # here: listing run folders imports this module
+
     header = struct.pack("<Q", len(data))
     return header + struct.pack("<I", masked_crc32c(header)) + data + struct.pack("<I", masked_crc32c(data))
 
@@ -66,6 +65,9 @@ def run_events(terms: dict[str, Any], rows: list[dict[str, Any]], now: float | N
     """The run's event stream: a version record, its HParams session (its terms), then one scalar
     per metric with a finite value (step 0 has no training loss) for each evaluation, in step
     order. Wall times count back from `now` by the recorded elapsed training time."""
+    from tensorboardX.proto.event_pb2 import Event  # here, as in _record: ~0.5 s of imports
+    from tensorboardX.summary import hparams, scalar
+
     now = time.time() if now is None else now
     last = rows[-1]["elapsed_s"] if rows else 0.0
     start = now - last
