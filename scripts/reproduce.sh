@@ -5,6 +5,8 @@
 #
 # Usage: bash scripts/reproduce.sh STAGE [LAKE] [RUNS]     (defaults data/lake and runs/repro)
 #   grid        3 modes × 10 worlds × 100000 steps, N_h = 3 (about 90 min of one core)
+#   grid-full   the grid at the paper's size, 3 modes × 50 worlds × 100000 steps, on this machine's
+#               two cores (studies/full/grid-2cores.toml; about 2 h on a quiet machine), then its report
 #   arm         3 modes × 3 worlds (seeds 0-2) × 100000 steps (25 min of rendering, 81 min of one core)
 #   grid-nh25   the grid study again with N_h = 25 (the same datasets)
 #   grid6       the six-motor grid, 3 worlds × 3 modes × 30000 steps, encoder 500-400-300-200
@@ -24,7 +26,7 @@
 #               RAY_ADDRESS=ray://head:10001 WORKERS=256 bash scripts/reproduce.sh full s3://b/lake s3://b/runs
 set -euo pipefail
 cd "$(dirname "$0")/.."
-STAGE=${1:?give a stage: grid, arm, grid-nh25, grid6, arm-more, arm6, reports, arm-ambiguity, ambiguity, precision, new, rest, full}
+STAGE=${1:?give a stage: grid, grid-full, arm, grid-nh25, grid6, arm-more, arm6, reports, arm-ambiguity, ambiguity, precision, new, rest, full}
 LAKE=${2:-data/lake}
 RUNS=${3:-runs/repro}
 BIN=.venv/bin
@@ -33,6 +35,10 @@ CORES=$(nproc)
 study() { "$BIN/smtrain" sweep "studies/$1.toml" --lake "$LAKE" --out "$RUNS/$1" --workers "$CORES" --gen-workers "$CORES"; }
 
 grid() { study grid; }
+grid_full() {
+  "$BIN/smtrain" sweep studies/full/grid-2cores.toml --lake "$LAKE" --out "$RUNS/grid-full"
+  "$BIN/smtrain" report "$RUNS/grid-full" --out docs/reproduction/grid-full
+}
 arm() { study arm; }
 grid_nh25() { study grid-nh25; }
 grid6() { study grid6; }
@@ -69,6 +75,7 @@ reports() {
 
 case "$STAGE" in
   grid) grid ;;
+  grid-full) grid_full ;;
   arm) arm ;;
   grid-nh25) grid_nh25 ;;
   grid6) grid6 ;;
