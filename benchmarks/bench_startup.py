@@ -52,14 +52,15 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=7)
     args = ap.parse_args()
     result = {}
-    tmp = tempfile.TemporaryDirectory()
-    for name, (cmd, env) in (COMMANDS | run_folders(Path(tmp.name))).items():
-        times = []
-        for _ in range(args.runs):
-            started = time.perf_counter()
-            subprocess.run(cmd, env={**os.environ, **env}, capture_output=True, check=True)
-            times.append(time.perf_counter() - started)
-        result[name] = round(statistics.median(times), 3)
+    with tempfile.TemporaryDirectory() as tmp:  # the run folders go when the timing is done
+        commands = COMMANDS | run_folders(Path(tmp))
+        for name, (cmd, env) in commands.items():
+            times = []
+            for _ in range(args.runs):
+                started = time.perf_counter()
+                subprocess.run(cmd, env={**os.environ, **env}, capture_output=True, check=True)
+                times.append(time.perf_counter() - started)
+            result[name] = round(statistics.median(times), 3)
     print(json.dumps({"median_s": result, "runs": args.runs}))
 
 
