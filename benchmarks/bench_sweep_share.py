@@ -45,6 +45,7 @@ def child(lake: str, out: str, worlds: int, steps: int, compile: bool, spawned_a
     engine.scores_row = timed("evaluation", engine.scores_row)
     engine._next_batch = timed("batches", engine._next_batch)
     fit.RunFolders.on_evaluation = timed("run-folder writes", fit.RunFolders.on_evaluation)
+    fit.RunFolders.on_finish = timed("run-folder writes", fit.RunFolders.on_finish)
     args = ["sweep", "--setup", "grid", "--modes", "all", "--worlds", str(worlds), "--steps", str(steps),
             "--lake", lake, "--out", out, "--workers", "1"] + (["--compile"] if compile else [])  # fmt: skip
     imported = time.time()

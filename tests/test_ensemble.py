@@ -497,3 +497,35 @@ def test_runs_of_one_ensemble_share_every_study_term_new_fields_included(tmp_pat
     with pytest.raises(SmspaceError, match=f"runs of one ensemble must share {field}"):
         train_ensemble(runs, progress=False)
     assert all(run.checkpoint_step() == 0 for run in runs)
+
+
+def test_a_write_that_fails_behind_the_steps_stops_the_ensemble_and_is_recorded(tmp_path, monkeypatch):
+    """An ensemble's run folders are written by a thread while the next steps train: a write that
+    fails there (a full disk) still stops the training with its own line, marks every run, leaves
+    each checkpoint at or behind its files, and the same runs resume to the end."""
+    import threading
+
+    cfgs = [config("MEM", 11), config("MM", 12)]
+    runs = [RunDir.create(tmp_path / f"r{i}", c, False) for i, c in enumerate(cfgs)]
+    original = RunDir.write_metrics
+
+    def full_disk(self, rows):
+        if rows[-1]["step"] == 20 and self.local_path.name == "r1":
+            raise SmspaceError(f"cannot write {self.url}/metrics.parquet: No space left on device")
+        original(self, rows)
+
+    with monkeypatch.context() as patched:
+        patched.setattr(RunDir, "write_metrics", full_disk)
+        with pytest.raises(SmspaceError, match="No space left on device"):
+            train_ensemble(runs, progress=False)
+    assert not [t for t in threading.enumerate() if t.name.startswith("smspace-run-writes")]
+    assert [run.checkpoint_step() for run in runs] == [20, 10]
+    for run in runs:
+        status = RunDir.open(run.local_path).status()
+        assert status["state"] == "failed" and "No space left on device" in status["message"], status
+    assert max(row["step"] for row in runs[1].metrics()) == 10
+    again = [RunDir.open(run.local_path) for run in runs]
+    train_ensemble(again, resume=True, progress=False)
+    for run in again:
+        assert [row["step"] for row in run.metrics()] == list(range(0, 61, 10))
+        assert run.status()["state"] == "finished"

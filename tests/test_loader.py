@@ -74,6 +74,21 @@ def test_same_seed_same_stream_other_seed_other_stream():
     assert not np.array_equal(a[:904], a[4096:])
 
 
+def test_a_dataset_kept_decoded_in_memory_streams_the_same_bytes(monkeypatch):
+    """A small dataset is decoded once per stream and its units served from memory afterwards; the
+    stream is exactly the one read from the shards each epoch (three epochs, windows of 2)."""
+    from smspace.train import loader
+
+    cached = TransitionStream(DATASET, seed=6, window=2)
+    a = rows_of(take(cached, 130))
+    assert cached._caching and len(cached._decoded) == len(cached.units)
+    monkeypatch.setattr(loader, "CACHE_BYTES", 0)
+    read_each_time = TransitionStream(DATASET, seed=6, window=2)
+    b = rows_of(take(read_each_time, 130))
+    assert not read_each_time._caching and not read_each_time._decoded
+    np.testing.assert_array_equal(a, b)
+
+
 def test_resume_continues_the_exact_stream():
     full = rows_of(take(TransitionStream(DATASET, seed=9, window=2), 120))
     first = TransitionStream(DATASET, seed=9, window=2)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -30,6 +31,7 @@ from smspace.train.engine import EvalData, Evaluation, Member, resolve_device
 from smspace.train.loader import TransitionStream
 from smspace.train.run_dir import CHECKPOINT, RunDir
 from smspace.train.terms import check_one_ensemble, resumed
+from smspace.train.write_behind import WriteBehind
 
 # --- plan -----------------------------------------------------------------------------------------
 
@@ -165,18 +167,44 @@ def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Rank
 
 class RunFolders:
     """The engine's sink for run folders: each evaluation's files, then its checkpoint (the commit
-    record); at the end, the status. Runs trained together keep their previous checkpoint too."""
+    record); at the end, the status. Runs trained together keep their previous checkpoint too.
+    `behind`: the files are written by a thread while the next steps train (train/write_behind.py);
+    use it as a context manager then, so that every write is done before the runs' outcome is."""
 
-    def __init__(self, runs: list[RunDir]):
+    def __init__(self, runs: list[RunDir], behind: bool = False):
         self.runs = runs
+        self._writer = WriteBehind() if behind else None
 
     def on_evaluation(self, ev: Evaluation) -> None:
         keep = len(self.runs) > 1
-        self.runs[ev.r].write_evaluation(ev.rows, ev.h, ev.p, ev.predictions, ev.true, ev.state, keep_previous=keep)
+        run = self.runs[ev.r]
+        rows = list(ev.rows)  # the trainer appends the next evaluation's row to its own list
+        write = partial(run.write_evaluation, rows, ev.h, ev.p, ev.predictions, ev.true, ev.state, keep_previous=keep)
+        if self._writer is None:
+            write()
+            return
+        if ev.r == 0:  # one evaluation in flight at most: the previous one is written first
+            self._writer.drain()
+        self._writer.submit(write)
 
     def on_finish(self, step: int, message: str) -> None:
+        if self._writer is not None:
+            self._writer.drain()
         for run in self.runs:
             run.set_status("finished", step, message)
+
+    def __enter__(self) -> RunFolders:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, *_: object) -> None:
+        if self._writer is None:
+            return
+        try:
+            self._writer.close()
+        except BaseException:
+            if kind is None:
+                raise
+            # training failed already: its error is the one to report, the writes' is a consequence
 
 
 def resume_from_folders(
@@ -303,4 +331,5 @@ def train_ensemble(
         check_resources(cfgs[0], manifests[0], runs=len(runs))
         learner = engine.EnsembleLearner(cfgs, *shape, [m.data for m in members], device)
         step = resume_from_folders(learner, members, runs, device, shape) if resume else 0
-        engine.train(learner, members, step, [RunFolders(runs)], progress, on_step=on_step)
+        with RunFolders(runs, behind=True) as folders:
+            engine.train(learner, members, step, [folders], progress, on_step=on_step)
