@@ -104,7 +104,7 @@ def ensemble_cost(template: TrainConfig, n_motor: int, probe: SetupProbe, runs: 
     torch.set_num_threads(template.threads)
     try:
         cpu = torch.device("cpu")
-        cfgs = [replace(template, seed=i, compile=False, loader_workers=0) for i in range(runs)]
+        cfgs = [replace(template, seed=i, compile="off", loader_workers=0) for i in range(runs)]
         data = eval_data(probe.dataset, template.eval_transitions, cpu)
 
         def loop(steps: int) -> float:

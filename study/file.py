@@ -335,6 +335,14 @@ def _train_value(fields_by_name: dict[str, Field], key: str, value: Any, bad, wh
         return float(value)
     if isinstance(default, int):
         return _integer(value, bad, where, f.metadata["min"], f.metadata["max"])
+    if key == "compile":  # true and false were its values before auto
+        from smspace.train.config import COMPILE_CHOICES
+
+        if isinstance(value, bool):
+            return "on" if value else "off"
+        if value not in COMPILE_CHOICES:
+            raise bad(where, f"expected one of {', '.join(COMPILE_CHOICES)} (or true, false), got {value!r}")
+        return value
     if key == "model":
         from smspace.train.config import model_names
 

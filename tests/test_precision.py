@@ -74,3 +74,47 @@ def test_a_sweep_without_a_compiler_says_so_once_not_once_per_worker(tmp_path):
     assert len(fallback) == 1 and "training eagerly" in fallback[0], result.stderr
     sessions = [RunDir.open(p.parent).config.sessions[-1] for p in (tmp_path / "runs").glob("*/config.json")]
     assert len(sessions) == 2 and all(s["compile"].startswith("eager:") for s in sessions), sessions
+
+
+def test_compile_auto_compiles_where_the_sessions_run_steps_repay_it_and_records_why(tmp_path, monkeypatch):
+    """--compile auto decides per session on what it will train (steps left x runs trained
+    together): a short session trains eagerly without even probing the compiler, a long one
+    compiles, and each session records what it did and why."""
+    from smspace.train import precision
+
+    probed = []
+    monkeypatch.setattr(precision, "_compile_problem", lambda: probed.append(1))
+    short = precision.compile_decision("auto", precision.AUTO_COMPILE_RUN_STEPS - 1)
+    assert short.startswith("eager: auto") and not precision.compiles(short) and not probed
+    long = precision.compile_decision("auto", precision.AUTO_COMPILE_RUN_STEPS)
+    assert precision.compiles(long) and "auto" in long and probed
+    assert precision.compile_decision("off", 10**9) is None
+    assert precision.compile_decision("on", 1) == "torch.compile"  # asked for: compiled however short
+
+    out = tmp_path / "run"
+    args = ["grid-seed0-MM", "--lake", SAMPLES, "--out", out, "--steps", 30, "--eval-every", 10, "--compile", "auto"]
+    result = run_cmd("smtrain", "fit", *args)
+    assert result.returncode == 0, result.stderr
+    config = RunDir.open(out).config
+    assert config.compile == "auto"
+    assert config.sessions[-1]["compile"].startswith("eager: auto, 30 run-steps"), config.sessions
+    assert smtrain("fit", "--resume", out, "--steps", 50).exit_code == 0  # the session trains the 20 steps left
+    assert RunDir.open(out).config.sessions[-1]["compile"].startswith("eager: auto, 20 run-steps")
+
+
+def test_compile_keeps_reading_the_true_and_false_of_older_runs_and_study_files(tmp_path):
+    from smspace.study.file import parse_study
+    from smspace.train.config import TrainConfig
+
+    assert TrainConfig(dataset="d", compile=True).compile == "on"
+    assert TrainConfig.from_dict({"dataset": "d", "compile": False}).compile == "off"
+    with pytest.raises(Exception, match="--compile 'sometimes': one of off, on, auto"):
+        TrainConfig(dataset="d", compile="sometimes")
+    study = {"study": {"name": "s", "setup": "grid", "modes": ["MM"], "worlds": 1}}
+    for given, kept in ((True, "on"), (False, "off"), ("auto", "auto")):
+        parsed = parse_study({**study, "train": {"steps": 20, "compile": given}}, "study.toml", default_name="s")
+        assert parsed.train["compile"] == kept
+    with pytest.raises(Exception, match=r"train\.compile"):
+        parse_study({**study, "train": {"steps": 20, "compile": 1}}, "study.toml", default_name="s")
+    bad = smtrain("fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", tmp_path / "x", "--compile", "always")
+    assert bad.exit_code == 2 and "'always' is not one of 'off', 'on', 'auto'" in bad.output

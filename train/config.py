@@ -23,6 +23,7 @@ RUNS = "runs"  # where runs go without --out: runs/<dataset>-nh<N>-seed<S>, a st
 DEFAULT_MODEL = "sensorimotor"
 ENTRY_POINTS = "smspace.models"  # where packages register networks of their own (docs/API.md)
 PRECISIONS = ("fp32", "bf16", "auto")
+COMPILE_CHOICES = ("off", "on", "auto")  # --compile alone: on
 
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
@@ -83,7 +84,11 @@ class TrainConfig:
         "fp32, bf16 (the training step's matmuls in bfloat16; weights, Adam, loss and evaluation in fp32) "
         "or auto (decided when the run is created: docs/MODEL.md §3).",
     )
-    compile: bool = flag(False, "Compile the training step with torch.compile (a CPU needs a C++ compiler).")
+    compile: str = flag(
+        "off",
+        "The training step through torch.compile: off, on (a CPU needs a C++ compiler; --compile alone) or "
+        "auto (on where the session's run-steps repay compilation; decided and recorded per session).",
+    )
     precision_asked: str = ""  # what --precision said (auto); `precision` is what it was resolved to
     # the model's package when a plugin ({} for smspace's own): distribution, version, code hash
     model_plugin: dict[str, str] = field(default_factory=dict)
@@ -115,6 +120,10 @@ class TrainConfig:
                 raise SmspaceError(f"--{name.replace('_', '-')}: {LAYER_BOUNDS}")
         if self.lr_decay_steps <= 0:
             self.lr_decay_steps = max(1, round(0.8 * self.steps))
+        if isinstance(self.compile, bool):  # config.json and study files of before auto said true/false
+            self.compile = "on" if self.compile else "off"
+        if self.compile not in COMPILE_CHOICES:
+            raise SmspaceError(f"--compile {self.compile!r}: one of {', '.join(COMPILE_CHOICES)}")
         if self.precision not in PRECISIONS:
             raise SmspaceError(f"--precision {self.precision!r}: one of {', '.join(PRECISIONS)}")
         self.precision_asked = self.precision_asked or self.precision

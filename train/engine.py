@@ -165,6 +165,8 @@ def scores_row(h: np.ndarray, p: np.ndarray, eval_loss: float) -> dict[str, floa
 class Learner(Protocol):
     """R runs' models and optimisers; run r sees only its own batches and gradients."""
 
+    compile: bool  # whether the steps go through torch.compile (the session's decision)
+
     def set_lr(self, lr: float) -> None: ...
 
     def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
@@ -215,7 +217,7 @@ class SingleLearner:
             group["lr"] = lr
 
     def _step_loss(self) -> Callable:
-        """The forward pass and loss of a step, in the run's precision, compiled if asked."""
+        """The forward pass and loss of a step, in the run's precision, compiled if decided."""
         if self._loss is None:
             loss = step_loss(self._training_model(), self.precision, self.data.m_regular.device)
             self._loss = compiled(loss, self.compile)
@@ -253,11 +255,14 @@ class EnsembleLearner:
     """R runs' models stacked (train/ensemble.py) with one fused Adam: the learner of a sweep.
     Each run's initial weights are the very ones its lone `fit` draws from its seed."""
 
-    def __init__(self, cfgs: list[TrainConfig], n_motor: int, n_sensor: int, data: list[EvalData], device):
+    def __init__(
+        self, cfgs: list[TrainConfig], n_motor: int, n_sensor: int, data: list[EvalData], device, compile: bool = False
+    ):
         self.stacked = Stacked([build(cfg, n_motor, n_sensor, device)[0] for cfg in cfgs])
         self.optimizer = adam(self.stacked.parameters(), cfgs[0].lr_start)
         loss = step_loss(self.stacked.forward, cfgs[0].precision, data[0].m_regular.device)
-        self._loss = compiled(loss, cfgs[0].compile)
+        self.compile = compile
+        self._loss = compiled(loss, compile)
         self.m_regular = torch.stack([d.m_regular for d in data])
         self.eval_inputs = [torch.stack([getattr(d, k) for d in data]) for k in ("m_t", "s_t", "m_t1", "s_t1")]
 
@@ -432,7 +437,7 @@ def train(
             learner.set_lr(learning_rate(cfg, step))
             started = time.perf_counter()
             losses = mean_over_ranks(learner.train_step([_next_batch(b) for b in batches]), ranks)
-            if cfg.compile and not compile_note:  # the first step of a session pays for compilation
+            if learner.compile and not compile_note:  # the first step of a session pays for compilation
                 compile_note = {"compiled in": f"{time.perf_counter() - started:.1f} s"}
                 bar.set_postfix(**compile_note)
             if check_each_step and not bool(torch.isfinite(losses).all()):

@@ -29,6 +29,7 @@ from smspace.train.contract import check_model
 from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch
 from smspace.train.engine import EvalData, Evaluation, Member, resolve_device
 from smspace.train.loader import TransitionStream
+from smspace.train.precision import compile_decision, compiles
 from smspace.train.run_dir import CHECKPOINT, RunDir
 from smspace.train.terms import check_one_ensemble, resumed
 from smspace.train.write_behind import WriteBehind
@@ -270,19 +271,33 @@ def _mark(runs: list[RunDir], state: str, message: str) -> None:
 
 
 @contextmanager
-def claimed(runs: list[RunDir], device: str, threads: int, primary: bool = True) -> Iterator[None]:
+def claimed(
+    runs: list[RunDir], cfg: TrainConfig, threads: int, resume: bool, primary: bool = True
+) -> Iterator[str | None]:
     """The runs held by this process while it trains them (a run another process trains is left
-    untouched), each with this session recorded; the claims end with the training, however it ends."""
+    untouched), each with this session recorded; the claims end with the training, however it ends.
+    Yields what --compile does in this session (train/precision.py), decided on the run-steps left."""
     try:
         if primary:
             for run in runs:
                 run.claim()
+        done = min(_steps_done(run) for run in runs) if resume else 0
+        decision = compile_decision(cfg.compile, len(runs) * max(0, cfg.steps - done))
+        if primary:
             for run in runs:
-                run.record_session(device, threads)
-        yield
+                run.record_session(cfg.device, threads, decision)
+        yield decision
     finally:
         for run in runs:
             run.release()
+
+
+def _steps_done(run: RunDir) -> int:
+    """The step of a run's last evaluation, as its status says (0 where it cannot say)."""
+    try:
+        return int(run.status()["step"])
+    except SmspaceError:
+        return 0
 
 
 # --- one run --------------------------------------------------------------------------------------
@@ -296,11 +311,12 @@ def fit(
     committed it."""
     torch.set_num_threads(cfg.threads)  # 2 cores: oversubscribed threads made steps 10-40x slower
     device = resolve_device(cfg.device)
-    with claimed([run], cfg.device, cfg.threads, ranks.primary), recorded_outcome([run] if ranks.primary else []):
+    claim = claimed([run], cfg, cfg.threads, resume, ranks.primary)
+    with claim as decision, recorded_outcome([run] if ranks.primary else []):
         member, ds = open_member(run, cfg, device, ranks)
         cfg, shape = member.cfg, _shape(ds.manifest)
         model, optimizer = engine.build(cfg, *shape, device)
-        learner = engine.SingleLearner(model, optimizer, member.data, ranks, cfg.precision, cfg.compile)
+        learner = engine.SingleLearner(model, optimizer, member.data, ranks, cfg.precision, compiles(decision))
         step = resume_from_folders(learner, [member], [run], device, shape, ranks) if resume else 0
         with peer_errors(ranks):
             engine.train(learner, [member], step, [RunFolders([run]), *sinks], ranks=ranks)
@@ -321,7 +337,7 @@ def train_ensemble(
     checkpoints; `on_step` hears the step about every second."""
     torch.set_num_threads(threads)
     device = resolve_device(runs[0].config.device)
-    with claimed(runs, runs[0].config.device, threads), recorded_outcome(runs):
+    with claimed(runs, runs[0].config, threads, resume) as decision, recorded_outcome(runs):
         opened = [open_member(run, run.config, device) for run in runs]
         members, manifests = [m for m, _ in opened], [ds.manifest for _, ds in opened]
         cfgs, shape = [m.cfg for m in members], _shape(manifests[0])
@@ -329,7 +345,7 @@ def train_ensemble(
         if any(_shape(mf) != shape for mf in manifests):
             raise SmspaceError("runs of one ensemble must have datasets of the same setup")
         check_resources(cfgs[0], manifests[0], runs=len(runs))
-        learner = engine.EnsembleLearner(cfgs, *shape, [m.data for m in members], device)
+        learner = engine.EnsembleLearner(cfgs, *shape, [m.data for m in members], device, compiles(decision))
         step = resume_from_folders(learner, members, runs, device, shape) if resume else 0
         with RunFolders(runs, behind=True) as folders:
             engine.train(learner, members, step, [folders], progress, on_step=on_step)

@@ -17,6 +17,7 @@ stream, so checkpoint the loader instead: torchdata's `StatefulDataLoader` colle
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -96,7 +97,10 @@ class TransitionStream(IterableDataset):
         manifest = self.dataset.manifest
         row_bytes = 4 * 2 * (manifest.n_motor + math.prod(manifest.sensor_shape))  # normalised float32
         self._caching = manifest.transitions * row_bytes <= CACHE_BYTES
-        self._decoded: dict[Unit, tuple[np.ndarray, ...]] = {}
+        self._decoded: dict[Unit, np.ndarray] = {}
+        n_m, n_s = manifest.n_motor, math.prod(manifest.sensor_shape)
+        edges = np.cumsum([0, n_m, n_s, n_m, n_s])
+        self._column_bounds = list(itertools.pairwise(edges.tolist()))  # of m_t, s_t, m_t1, s_t1 in a row
 
     # -- resumable state ------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
@@ -135,28 +139,29 @@ class TransitionStream(IterableDataset):
                 yield epoch, w, units[w : w + self.window]
             epoch += 1
 
-    def _unit_columns(self, readers: dict[int, ShardReader], unit: Unit) -> tuple[np.ndarray, ...]:
-        """A unit's four columns, normalised; kept in memory after the first read when the whole
-        dataset fits in CACHE_BYTES (a grid world's 100000 transitions take 6 MB): a long run
-        reads each unit a hundred times, and decoding it was a third of the loader's time."""
+    def _unit_rows(self, readers: dict[int, ShardReader], unit: Unit) -> np.ndarray:
+        """A unit's transitions as rows (m_t, s_t, m_t1, s_t1 side by side), normalised; kept in
+        memory after the first read when the whole dataset fits in CACHE_BYTES (a grid world's
+        150000 transitions take 8 MB): a long run reads each unit a hundred times, and decoding
+        it was a third of the loader's time."""
         cached = self._decoded.get(unit)
         if cached is not None:
             return cached
         t = readers[unit.shard].block_at(unit.first_index).transitions
-        columns = (self.m_norm(t.m_t), self.s_norm(t.s_t), self.m_norm(t.m_t1), self.s_norm(t.s_t1))
+        rows = np.hstack([self.m_norm(t.m_t), self.s_norm(t.s_t), self.m_norm(t.m_t1), self.s_norm(t.s_t1)])
         if self._caching:
-            self._decoded[unit] = columns
-        return columns
+            self._decoded[unit] = rows
+        return rows
 
     def _rows(self, readers: dict[int, ShardReader], epoch: int, w: int, g: int, units: list[Unit]):
-        """A window's rows in its shuffled order (normalising is per element: before or after the
-        shuffle, the same values)."""
-        blocks = [self._unit_columns(readers, u) for u in units]
-        cat = [np.concatenate(parts) for parts in zip(*blocks, strict=True)]
+        """A window's four columns in its shuffled order (normalising is per element: before or
+        after the shuffle, the same values). Rows move as one: one gather, not four."""
+        cat = np.concatenate([self._unit_rows(readers, u) for u in units])
         order = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(epoch, w, g, 1))).permutation(
-            len(cat[0])
+            len(cat)
         )
-        return tuple(c[order] for c in cat)
+        shuffled = cat.take(order, axis=0)
+        return tuple(np.ascontiguousarray(shuffled[:, a:b]) for a, b in self._column_bounds)
 
     def _role(self) -> tuple[int, int, int]:
         """(consumer index, consumer count, batches this consumer already delivered).
@@ -190,8 +195,7 @@ class TransitionStream(IterableDataset):
             self._consumer = (g, n_consumers, delivered)
         skip_rows = delivered * self.batch_size
         readers: dict[int, ShardReader] = {}
-        pending: list[tuple[np.ndarray, ...]] = []
-        pending_rows = 0
+        carry: tuple[np.ndarray, ...] = ()  # rows of the previous window short of a whole batch
         try:
             for epoch, w, units in self._windows(g, n_consumers):
                 rows = sum(u.count for u in units)
@@ -205,16 +209,17 @@ class TransitionStream(IterableDataset):
                 if skip_rows:
                     cols = tuple(c[skip_rows:] for c in cols)
                     skip_rows = 0
-                pending.append(cols)
-                pending_rows += len(cols[0])
-                while pending_rows >= self.batch_size:
-                    batch, pending, pending_rows = _take(pending, self.batch_size)
+                if carry:
+                    cols = tuple(np.concatenate(pair) for pair in zip(carry, cols, strict=True))
+                whole = len(cols[0]) // self.batch_size * self.batch_size
+                carry = tuple(c[whole:] for c in cols)
+                # the window's batches cut at once (views of its rows): per batch, nothing is left to do
+                for batch in zip(*(_batches_of(c[:whole], self.batch_size) for c in cols), strict=True):
                     self._count_delivered(info is not None)
                     yield batch
-            if pending_rows:  # finite streams end with a partial batch
-                batch, pending, pending_rows = _take(pending, pending_rows)
+            if carry and len(carry[0]):  # finite streams end with a partial batch
                 self._count_delivered(info is not None)
-                yield batch
+                yield tuple(torch.from_numpy(c) for c in carry)
         finally:
             for reader in readers.values():
                 reader.close()
@@ -228,16 +233,6 @@ class TransitionStream(IterableDataset):
             self.batches_consumed += 1
 
 
-def _take(pending: list[tuple[np.ndarray, ...]], n: int):
-    """Cut the first n rows off the queue of column blocks."""
-    if len(pending[0][0]) >= n:
-        head = pending[0]
-        batch = tuple(torch.from_numpy(np.ascontiguousarray(c[:n])) for c in head)
-        rest = tuple(c[n:] for c in head)
-        pending = ([rest] if len(rest[0]) else []) + pending[1:]
-    else:
-        cols = tuple(np.concatenate(parts) for parts in zip(*pending, strict=True))
-        batch = tuple(torch.from_numpy(np.ascontiguousarray(c[:n])) for c in cols)
-        rest = tuple(c[n:] for c in cols)
-        pending = [rest] if len(rest[0]) else []
-    return batch, pending, sum(len(p[0]) for p in pending)
+def _batches_of(column: np.ndarray, size: int) -> tuple[torch.Tensor, ...]:
+    """A column of whole batches cut into batch tensors at once: views, no copy."""
+    return torch.from_numpy(column).view(len(column) // size, size, *column.shape[1:]).unbind(0)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import click
 
 from smspace.common.completion import complete_devices
-from smspace.train.config import LAYER_BOUNDS, PRECISIONS, flag_name, layers_within_bounds, model_names
+from smspace.train.config import COMPILE_CHOICES, LAYER_BOUNDS, PRECISIONS, flag_name, layers_within_bounds, model_names
 
 if TYPE_CHECKING:
     from smspace.train.config import TrainConfig
@@ -92,6 +92,11 @@ def config_options(exclude: tuple[str, ...] = ()) -> Callable:
                 option = click.option(
                     flag_name(f), f.name, type=click.Choice(PRECISIONS), default=default, show_default=True,
                     help=help_text,
+                )  # fmt: skip
+            elif f.name == "compile":  # `--compile` alone means on, as it did before auto
+                option = click.option(
+                    flag_name(f), f.name, type=click.Choice(COMPILE_CHOICES), is_flag=False, flag_value="on",
+                    default=default, show_default=True, help=help_text,
                 )  # fmt: skip
             elif f.name == "model":
                 option = click.option(

@@ -59,29 +59,48 @@ def autocast(precision: str, device: torch.device) -> Iterator[None]:
         yield
 
 
-def compile_decision(enabled: bool) -> str | None:
-    """What --compile does here, as recorded in each session of config.json: "torch.compile", or
-    "eager: why" when torch.compile does not work here (inductor needs a C++ compiler on a CPU);
-    None when not asked. One decision per process, the same one `compiled` acts on."""
-    if not enabled:
+# auto compiles a session whose run-steps (steps left x runs trained together) repay compilation:
+# benchmarks/bench_compile.py measured the first compiled step of a 30-run grid ensemble at 7-8 s
+# (a cold inductor cache; about 2 s warm) and the compiled step 0.12-0.16 ms per run-step faster
+# than eager, so compiling pays from about 50000 run-steps on (a grid study's 100000-step runs: 2
+# million per ensemble). Below that, eager is as fast or faster; the cache is not trusted to be warm.
+AUTO_COMPILE_RUN_STEPS = 50_000
+
+
+def compile_decision(asked: str, run_steps: int) -> str | None:
+    """What --compile does in this session, as recorded in config.json's session: "torch.compile"
+    (with why, under auto), or "eager: why"; None when not asked (off). One probe per process, the
+    same decision the steps act on (`compiles`). `run_steps`: what this session will train."""
+    if asked == "off":
         return None
+    auto = asked == "auto"
+    if auto and run_steps < AUTO_COMPILE_RUN_STEPS:
+        return f"eager: auto, {run_steps} run-steps do not repay compilation (from {AUTO_COMPILE_RUN_STEPS})"
     problem = _compile_problem()
-    return "torch.compile" if problem is None else f"eager: torch.compile does not work here ({problem})"
+    if problem is not None:
+        if not auto:
+            _say_once(
+                f"--compile: torch.compile does not work here ({problem}); training eagerly (recorded in config.json)"
+            )
+        return f"eager: torch.compile does not work here ({problem})"
+    return f"torch.compile (auto: {run_steps} run-steps)" if auto else "torch.compile"
 
 
-def compiled(fn: Callable, enabled: bool, say: Callable[[str], None] | None = None) -> Callable:
-    """`fn` through torch.compile when asked and when it works here: a tiny function is compiled
-    first, and a failure is one line (said once per process), then eager."""
-    decision = compile_decision(enabled)
-    if decision is None:
-        return fn
-    if decision != "torch.compile":
-        if not _checked.get("said"):
-            _checked["said"] = "yes"
-            say = say or (_notes[0] if _notes else lambda line: print(line, file=sys.stderr, flush=True))
-            say(f"--compile: {decision.removeprefix('eager: ')}; training eagerly (recorded in config.json)")
-        return fn
-    return torch.compile(fn)
+def compiles(decision: str | None) -> bool:
+    return decision is not None and decision.startswith("torch.compile")
+
+
+def compiled(fn: Callable, enabled: bool) -> Callable:
+    """`fn` through torch.compile when the session's decision (`compile_decision`) says so."""
+    return torch.compile(fn) if enabled else fn
+
+
+def _say_once(line: str) -> None:
+    """The fallback line, once per process (a sweep's workers hand it to the study's monitor)."""
+    if not _checked.get("said"):
+        _checked["said"] = "yes"
+        say = _notes[0] if _notes else lambda text: print(text, file=sys.stderr, flush=True)
+        say(line)
 
 
 _checked: dict[str, str | None] = {}

@@ -348,14 +348,11 @@ class RunDir(RunView):
             self._terms = asdict(self.config)
         return self._terms
 
-    def record_session(self, device: str, threads: int) -> None:
+    def record_session(self, device: str, threads: int, compile: str | None = None) -> None:
         """Add what this training session runs on to config.json (by the process that claimed it),
-        with what it does of --compile here (train/precision.py: the decision the steps act on)."""
-        from smspace.train.precision import compile_decision  # imports torch
-
+        with what it does of --compile (train/precision.py: the decision the steps act on)."""
         cfg = self.config
-        decided = compile_decision(cfg.compile)
-        done = {"compile": decided} if decided is not None else {}
+        done = {"compile": compile} if compile is not None else {}
         self.write_config(replace(cfg, sessions=[*cfg.sessions, provenance.session(device, threads, **done)]))
 
     def _clear(self) -> None:
