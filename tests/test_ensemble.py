@@ -492,7 +492,10 @@ def test_runs_of_one_ensemble_share_every_study_term_new_fields_included(tmp_pat
     eval_transitions and shuffle_window are terms no flag sets, and are refused all the same."""
     first = config("MM", 1)
     value = getattr(first, field)
-    other = replace(config("MM", 2), **{field: (not value) if isinstance(value, bool) else value * 2})
+    changed = {"compile": "on" if value == "off" else "off"}.get(
+        field, (not value) if isinstance(value, bool) else value * 2
+    )
+    other = replace(config("MM", 2), **{field: changed})
     runs = [RunDir.create(tmp_path / f"r{i}", cfg, False) for i, cfg in enumerate((first, other))]
     with pytest.raises(SmspaceError, match=f"runs of one ensemble must share {field}"):
         train_ensemble(runs, progress=False)

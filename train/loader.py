@@ -22,7 +22,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -63,8 +63,37 @@ def _rank(rank: int | None, world: int | None) -> tuple[int, int]:
     return 0, 1
 
 
+class Batch(NamedTuple):
+    """One batch of transitions, float32 and normalised: a tuple (m_t, s_t, m_t1, s_t1) with names.
+
+    From a DataLoader worker it travels as one buffer of bytes through the pipe: as tensors, each
+    of the four went through its own shared-memory handle, and the handles, not the data, capped
+    the workers at ~450 batches/s (benchmarks/bench_loader_workers.py)."""
+
+    m_t: torch.Tensor
+    s_t: torch.Tensor
+    m_t1: torch.Tensor
+    s_t1: torch.Tensor
+
+    def __reduce__(self):
+        if any(t.dtype != torch.float32 for t in self):  # not the stream's own: pickled as it is
+            return (Batch, tuple(self))
+        data = bytearray(b"".join(t.contiguous().numpy().tobytes() for t in self))
+        return (_unpacked, (data, [tuple(t.shape) for t in self]))
+
+
+def _unpacked(data: bytearray, shapes: list[tuple[int, ...]]) -> Batch:
+    flat = torch.frombuffer(data, dtype=torch.float32) if data else torch.empty(0)
+    tensors, offset = [], 0
+    for shape in shapes:
+        n = math.prod(shape)
+        tensors.append(flat[offset : offset + n].view(shape))
+        offset += n
+    return Batch(*tensors)
+
+
 class TransitionStream(IterableDataset):
-    """Yields (m_t, s_t, m_t1, s_t1) float32 batches, normalised with the manifest's statistics."""
+    """Yields `Batch`es (m_t, s_t, m_t1, s_t1), float32, normalised with the manifest's statistics."""
 
     def __init__(
         self,
@@ -153,15 +182,27 @@ class TransitionStream(IterableDataset):
             self._decoded[unit] = rows
         return rows
 
-    def _rows(self, readers: dict[int, ShardReader], epoch: int, w: int, g: int, units: list[Unit]):
-        """A window's four columns in its shuffled order (normalising is per element: before or
-        after the shuffle, the same values). Rows move as one: one gather, not four."""
+    def _rows(self, readers: dict[int, ShardReader], epoch: int, w: int, g: int, units: list[Unit]) -> np.ndarray:
+        """A window's rows in its shuffled order (normalising is per element: before or after the
+        shuffle, the same values). Rows move as one: one gather, not one per column."""
         cat = np.concatenate([self._unit_rows(readers, u) for u in units])
         order = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(epoch, w, g, 1))).permutation(
             len(cat)
         )
-        shuffled = cat.take(order, axis=0)
-        return tuple(np.ascontiguousarray(shuffled[:, a:b]) for a, b in self._column_bounds)
+        return cat.take(order, axis=0)
+
+    def _columns(self, rows: np.ndarray) -> list[torch.Tensor]:
+        """m_t, s_t, m_t1, s_t1 of `rows`, each contiguous, all four in one storage: a DataLoader
+        worker hands a window's batches over through one shared-memory segment, not four per batch."""
+        n = len(rows)
+        flat = torch.empty(rows.size, dtype=torch.float32)
+        columns, offset = [], 0
+        for a, b in self._column_bounds:
+            column = flat[offset : offset + n * (b - a)].view(n, b - a)
+            column.numpy()[...] = rows[:, a:b]
+            columns.append(column)
+            offset += n * (b - a)
+        return columns
 
     def _role(self) -> tuple[int, int, int]:
         """(consumer index, consumer count, batches this consumer already delivered).
@@ -188,14 +229,14 @@ class TransitionStream(IterableDataset):
         delivered = -(-(n - role) // n_workers) if n > role else 0
         return rank * n_workers + role, world * n_workers, delivered
 
-    def __iter__(self) -> Iterator[tuple[torch.Tensor, ...]]:
+    def __iter__(self) -> Iterator[Batch]:
         g, n_consumers, delivered = self._role()
         info = get_worker_info()
         if info is not None:
             self._consumer = (g, n_consumers, delivered)
         skip_rows = delivered * self.batch_size
         readers: dict[int, ShardReader] = {}
-        carry: tuple[np.ndarray, ...] = ()  # rows of the previous window short of a whole batch
+        carry: np.ndarray | None = None  # rows of the previous window short of a whole batch
         try:
             for epoch, w, units in self._windows(g, n_consumers):
                 rows = sum(u.count for u in units)
@@ -205,21 +246,23 @@ class TransitionStream(IterableDataset):
                 for u in units:
                     if u.shard not in readers:
                         readers[u.shard] = self.dataset.shard_reader(u.shard)
-                cols = self._rows(readers, epoch, w, g, units)
-                if skip_rows:
-                    cols = tuple(c[skip_rows:] for c in cols)
-                    skip_rows = 0
-                if carry:
-                    cols = tuple(np.concatenate(pair) for pair in zip(carry, cols, strict=True))
-                whole = len(cols[0]) // self.batch_size * self.batch_size
-                carry = tuple(c[whole:] for c in cols)
-                # the window's batches cut at once (views of its rows): per batch, nothing is left to do
-                for batch in zip(*(_batches_of(c[:whole], self.batch_size) for c in cols), strict=True):
+                window = self._rows(readers, epoch, w, g, units)[skip_rows:]
+                skip_rows = 0
+                if carry is not None:
+                    window = np.concatenate([carry, window])
+                whole = len(window) // self.batch_size * self.batch_size
+                carry = window[whole:]
+                # the window's batches cut at once (views of its columns): per batch, nothing is left to do
+                batches = (
+                    column.view(whole // self.batch_size, self.batch_size, column.shape[1]).unbind(0)
+                    for column in self._columns(window[:whole])
+                )
+                for batch in zip(*batches, strict=True):
                     self._count_delivered(info is not None)
-                    yield batch
-            if carry and len(carry[0]):  # finite streams end with a partial batch
+                    yield Batch(*batch)
+            if carry is not None and len(carry):  # finite streams end with a partial batch
                 self._count_delivered(info is not None)
-                yield tuple(torch.from_numpy(c) for c in carry)
+                yield Batch(*self._columns(carry))
         finally:
             for reader in readers.values():
                 reader.close()
@@ -231,8 +274,3 @@ class TransitionStream(IterableDataset):
             self._consumer = (g, n_consumers, delivered + 1)
         else:
             self.batches_consumed += 1
-
-
-def _batches_of(column: np.ndarray, size: int) -> tuple[torch.Tensor, ...]:
-    """A column of whole batches cut into batch tensors at once: views, no copy."""
-    return torch.from_numpy(column).view(len(column) // size, size, *column.shape[1:]).unbind(0)
