@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 __all__ = [
     "MODES",
+    "Batch",
     "Dataset",
     "Lake",
     "Run",
@@ -49,6 +50,7 @@ _WHERE = {
     "affine_projection": "smspace.metrics",
     "TrainConfig": "smspace.train.config",
     "TransitionStream": "smspace.train.loader",
+    "Batch": "smspace.train.loader",
     "Dataset": "smspace.lake.dataset",
     "Run": "smspace.api",
     "Lake": "smspace.api",
@@ -84,4 +86,4 @@ if TYPE_CHECKING:
     from smspace.metrics import affine_projection, spatial_scores
     from smspace.metrics.spatial import SpatialScores
     from smspace.train.config import TrainConfig
-    from smspace.train.loader import TransitionStream
+    from smspace.train.loader import Batch, TransitionStream

@@ -111,3 +111,33 @@ def test_a_rank_deficient_h_is_fitted_without_amplifying_its_rounding():
         rounded = (h + rng.normal(size=h.shape) * 1e-7 * np.abs(h)).astype(np.float32)
         assert spatial_scores(rounded, p).d_metric == pytest.approx(exact, rel=1e-5), k
     assert spatial_scores(m, p).d_metric == pytest.approx(exact, rel=1e-9)  # the same span: the same fit
+
+
+def test_two_nn_finds_the_dimension_of_the_manifold_not_of_the_space_it_lies_in():
+    from smspace.metrics.dimension import two_nn_dimension
+
+    rng = np.random.default_rng(3)
+    for d, low, high in ((1, 0.9, 1.1), (2, 1.85, 2.2)):
+        flat = rng.uniform(size=(2000, d)) @ rng.normal(size=(d, 8))  # embedded in 8 dimensions
+        assert low < two_nn_dimension(flat) < high, d
+    plane = rng.uniform(size=(500, 2)) @ rng.normal(size=(2, 3))
+    repeated = np.vstack([plane, plane, plane[:100]])  # several motor states at one h say nothing more
+    assert two_nn_dimension(repeated) == two_nn_dimension(plane)
+    with pytest.raises(ValueError, match="3 distinct points"):
+        two_nn_dimension(np.zeros((10, 3)))
+
+
+def test_the_probe_scores_positions_on_states_it_was_not_fitted_on():
+    from smspace.metrics.probe import probe_r2
+
+    rng = np.random.default_rng(5)
+    p = rng.uniform(-2, 2, size=(125, 2))
+    encoded = np.hstack([p @ rng.normal(size=(2, 2)), np.zeros((125, 1))]) + 1e-3 * rng.normal(size=(125, 3))
+    assert probe_r2(encoded, p) > 0.999
+    wide_noise = rng.normal(size=(125, 25))  # 26 parameters fit 125 points in-sample, not held-out ones
+    assert spatial_scores(wide_noise, p).d_metric < spatial_scores(rng.normal(size=(125, 3)), p).d_metric
+    assert probe_r2(wide_noise, p) < 0.0
+    assert probe_r2(encoded, p, seed=1) != probe_r2(encoded, p, seed=2)  # the folds come from the seed
+    assert probe_r2(encoded, p, seed=1) == probe_r2(encoded, p, seed=1)
+    with pytest.raises(ValueError, match="all positions coincide"):
+        probe_r2(encoded, np.zeros((125, 2)))
