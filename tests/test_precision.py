@@ -82,12 +82,19 @@ def test_compile_auto_compiles_where_the_sessions_run_steps_repay_it_and_records
     compiles, and each session records what it did and why."""
     from smspace.train import precision
 
-    probed = []
+    probed, cache = [], {"warm": False}
     monkeypatch.setattr(precision, "_compile_problem", lambda: probed.append(1))
-    short = precision.compile_decision("auto", precision.AUTO_COMPILE_RUN_STEPS - 1)
+    monkeypatch.setattr(precision, "_inductor_cache_warm", lambda: cache["warm"])
+    warm_from, cold_from = precision.AUTO_COMPILE_RUN_STEPS_WARM, precision.AUTO_COMPILE_RUN_STEPS
+    short = precision.compile_decision("auto", warm_from - 1)
     assert short.startswith("eager: auto") and not precision.compiles(short) and not probed
-    long = precision.compile_decision("auto", precision.AUTO_COMPILE_RUN_STEPS)
-    assert precision.compiles(long) and "auto" in long and probed
+    cold = precision.compile_decision("auto", cold_from - 1)
+    assert cold.startswith("eager: auto") and "empty inductor cache" in cold and not probed
+    long = precision.compile_decision("auto", cold_from)
+    assert precision.compiles(long) and "auto" in long and "empty inductor cache" in long and probed
+    cache["warm"] = True  # a session here compiled before: its graphs are read, not compiled again
+    warm = precision.compile_decision("auto", warm_from)
+    assert precision.compiles(warm) and "warm inductor cache" in warm
     assert precision.compile_decision("off", 10**9) is None
     assert precision.compile_decision("on", 1) == "torch.compile"  # asked for: compiled however short
 
@@ -118,3 +125,14 @@ def test_compile_keeps_reading_the_true_and_false_of_older_runs_and_study_files(
         parse_study({**study, "train": {"steps": 20, "compile": 1}}, "study.toml", default_name="s")
     bad = smtrain("fit", "grid-seed0-MM", "--lake", SAMPLES, "--out", tmp_path / "x", "--compile", "always")
     assert bad.exit_code == 2 and "'always' is not one of 'off', 'on', 'auto'" in bad.output
+
+
+def test_a_warm_inductor_cache_is_one_that_holds_compiled_graphs(tmp_path, monkeypatch):
+    from smspace.train.precision import _inductor_cache_warm
+
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path / "inductor"))
+    assert not _inductor_cache_warm()
+    (tmp_path / "inductor" / "fxgraph").mkdir(parents=True)
+    assert not _inductor_cache_warm()
+    (tmp_path / "inductor" / "fxgraph" / "ab").mkdir()
+    assert _inductor_cache_warm()

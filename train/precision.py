@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import sys
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import torch
 
@@ -59,12 +60,13 @@ def autocast(precision: str, device: torch.device) -> Iterator[None]:
         yield
 
 
-# auto compiles a session whose run-steps (steps left x runs trained together) repay compilation:
-# benchmarks/bench_compile.py measured the first compiled step of a 30-run grid ensemble at 7-8 s
-# (a cold inductor cache; about 2 s warm) and the compiled step 0.12-0.16 ms per run-step faster
-# than eager, so compiling pays from about 50000 run-steps on (a grid study's 100000-step runs: 2
-# million per ensemble). Below that, eager is as fast or faster; the cache is not trusted to be warm.
-AUTO_COMPILE_RUN_STEPS = 50_000
+# auto compiles a session whose run-steps (steps left x runs trained together) repay compilation.
+# benchmarks/bench_ensemble.py, 30 grid runs stacked, one core: the first compiled step took 19 s
+# with an empty inductor cache and 2.8 s with a warm one, and a compiled step saved 0.23 ms per
+# run-step (1.21 -> 0.97 ms; docs/SPEED.md). So compiling pays from ~85000 run-steps cold and
+# ~12000 warm; auto asks for a margin over both.
+AUTO_COMPILE_RUN_STEPS = 100_000  # with an empty inductor cache
+AUTO_COMPILE_RUN_STEPS_WARM = 15_000  # where inductor's graph cache holds compiled graphs already
 
 
 def compile_decision(asked: str, run_steps: int) -> str | None:
@@ -74,8 +76,14 @@ def compile_decision(asked: str, run_steps: int) -> str | None:
     if asked == "off":
         return None
     auto = asked == "auto"
-    if auto and run_steps < AUTO_COMPILE_RUN_STEPS:
-        return f"eager: auto, {run_steps} run-steps do not repay compilation (from {AUTO_COMPILE_RUN_STEPS})"
+    if auto:
+        if run_steps < AUTO_COMPILE_RUN_STEPS_WARM:
+            return f"eager: auto, {run_steps} run-steps do not repay compilation"
+        warm = _inductor_cache_warm()
+        needed = AUTO_COMPILE_RUN_STEPS_WARM if warm else AUTO_COMPILE_RUN_STEPS
+        cache = "a warm inductor cache" if warm else "an empty inductor cache"
+        if run_steps < needed:
+            return f"eager: auto, {run_steps} run-steps do not repay compilation with {cache} (from {needed})"
     problem = _compile_problem()
     if problem is not None:
         if not auto:
@@ -83,7 +91,16 @@ def compile_decision(asked: str, run_steps: int) -> str | None:
                 f"--compile: torch.compile does not work here ({problem}); training eagerly (recorded in config.json)"
             )
         return f"eager: torch.compile does not work here ({problem})"
-    return f"torch.compile (auto: {run_steps} run-steps)" if auto else "torch.compile"
+    return f"torch.compile (auto: {run_steps} run-steps, {cache})" if auto else "torch.compile"
+
+
+def _inductor_cache_warm() -> bool:
+    """Whether inductor's graph cache here holds compiled graphs (a session compiled before): the
+    next compilation of the same step then reads them instead of compiling again."""
+    from torch._inductor.runtime.cache_dir_utils import cache_dir
+
+    graphs = Path(cache_dir()) / "fxgraph"
+    return graphs.is_dir() and any(graphs.iterdir())
 
 
 def compiles(decision: str | None) -> bool:
