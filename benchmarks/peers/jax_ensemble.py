@@ -11,9 +11,7 @@ Usage: python jax_ensemble.py DATA.npz [--runs 30] [--steps 3000] [--warmup 1000
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import json
 import os
 import time
 
@@ -23,8 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-
-ENCODER, PREDICTOR = (150, 100, 50), (200, 150, 100)
+from contender import ENCODER, PREDICTOR, arguments, columns, report
 
 
 def init_mlp(key, sizes):
@@ -60,17 +57,9 @@ def loss_fn(params, m_t, s_t, m_t1, s_t1):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("data")
-    ap.add_argument("--runs", type=int, default=30)
-    ap.add_argument("--steps", type=int, default=3000)
-    ap.add_argument("--warmup", type=int, default=1000)
-    ap.add_argument("--nh", type=int, default=3)
-    ap.add_argument("--batch", type=int, default=100)
-    args = ap.parse_args()
-    data = np.load(args.data)
-    columns = [data[k] for k in ("m_t", "s_t", "m_t1", "s_t1")]
-    n_m, n_s = columns[0].shape[1], columns[1].shape[1]
+    args = arguments(ensemble=True)
+    data = columns(args.data)
+    n_m, n_s = data[0].shape[1], data[1].shape[1]
 
     keys = jax.random.split(jax.random.PRNGKey(0), args.runs)
     params = jax.vmap(lambda k: init_net(k, n_m, n_s, args.nh))(keys)
@@ -90,23 +79,13 @@ def main() -> None:
         if i == args.warmup:
             jax.block_until_ready(params)
             steady_from = time.perf_counter()
-        idx = rng.choice(len(columns[0]), (args.runs, args.batch), replace=True)
-        batch = tuple(jnp.asarray(c[idx]) for c in columns)
+        idx = rng.choice(len(data[0]), (args.runs, args.batch), replace=True)
+        batch = tuple(jnp.asarray(c[idx]) for c in data)
         params, opt_state, _ = update(params, opt_state, batch)
     jax.block_until_ready(params)
     ended = time.perf_counter()
-    steady = args.steps - args.warmup
-    print(
-        json.dumps(
-            {
-                "contender": f"JAX vmap + jit + optax Adam, {args.runs} run(s) at once",
-                "runs": args.runs,
-                "ms_per_run_step": round((ended - steady_from) / steady / args.runs * 1e3, 4),
-                "warmup_s": round(steady_from - started, 2),
-                "jax": jax.__version__,
-            }
-        )
-    )
+    name = f"JAX vmap + jit + optax Adam, {args.runs} run(s) at once"
+    report(name, args.runs, ended - steady_from, args.steps - args.warmup, steady_from - started, jax=jax.__version__)
 
 
 if __name__ == "__main__":

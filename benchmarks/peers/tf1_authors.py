@@ -14,8 +14,6 @@ Usage: python tf1_authors.py DATA.npz [--steps 3000] [--warmup 1000] [--nh 3]
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import time
 
@@ -23,9 +21,9 @@ os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 import numpy as np
 import tensorflow as tf
+from contender import ENCODER, PREDICTOR, arguments, columns, report
 
 tf1 = tf.compat.v1
-ENCODER, PREDICTOR = (150, 100, 50), (200, 150, 100)
 
 
 def dense(x, units: int, name: str, activation=None):
@@ -43,15 +41,8 @@ def mlp(x, sizes, out: int):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("data")
-    ap.add_argument("--steps", type=int, default=3000)
-    ap.add_argument("--warmup", type=int, default=1000)
-    ap.add_argument("--nh", type=int, default=3)
-    ap.add_argument("--batch", type=int, default=100)
-    args = ap.parse_args()
-    data = np.load(args.data)
-    m_t, s_t, m_t1, s_t1 = (data[k] for k in ("m_t", "s_t", "m_t1", "s_t1"))
+    args = arguments(ensemble=False)
+    m_t, s_t, m_t1, s_t1 = columns(args.data)
     n_m, n_s = m_t.shape[1], s_t.shape[1]
 
     tf1.disable_eager_execution()
@@ -85,18 +76,8 @@ def main() -> None:
             feed = {motor_t: m_t[idx], sensor_t: s_t[idx], motor_tp: m_t1[idx], sensor_tp: s_t1[idx]}
             sess.run(train, feed_dict=feed)
         ended = time.perf_counter()
-    steady = args.steps - args.warmup
-    print(
-        json.dumps(
-            {
-                "contender": "authors' TF1 graph (tf.compat.v1), one run",
-                "runs": 1,
-                "ms_per_run_step": round((ended - steady_from) / steady * 1e3, 4),
-                "warmup_s": round(steady_from - started, 2),
-                "tensorflow": tf.__version__,
-            }
-        )
-    )
+    name = "authors' TF1 graph (tf.compat.v1), one run"
+    report(name, 1, ended - steady_from, args.steps - args.warmup, steady_from - started, tensorflow=tf.__version__)
 
 
 if __name__ == "__main__":
