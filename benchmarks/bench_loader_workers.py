@@ -94,6 +94,13 @@ def main() -> None:
             cases[f"DataLoader, num_workers={workers}"] = lambda w=workers: iter(
                 DataLoader(stream(dataset, batch_size=100, seed=1), batch_size=None, num_workers=w)
             )
+        if args.loader is None:  # many batches per queue item, in the DataLoader's order
+            from smspace.train.worker_batches import worker_batches
+
+            for workers in (1, 2):
+                cases[f"worker_batches, num_workers={workers}"] = lambda w=workers: worker_batches(
+                    stream(dataset, batch_size=100, seed=1), w
+                )
         rates = {name: round(rate(make, args.batches, args.repeats)) for name, make in cases.items()}
         step = training_step()
         loops = {name: round(rate(make, args.steps, args.repeats, step)) for name, make in cases.items()}

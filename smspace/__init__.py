@@ -39,6 +39,7 @@ __all__ = [
     "resume",
     "run_study",
     "spatial_scores",
+    "worker_batches",
 ]
 
 _WHERE = {
@@ -51,6 +52,7 @@ _WHERE = {
     "TrainConfig": "smspace.train.config",
     "TransitionStream": "smspace.train.loader",
     "Batch": "smspace.train.loader",
+    "worker_batches": "smspace.train.worker_batches",
     "Dataset": "smspace.lake.dataset",
     "Run": "smspace.api",
     "Lake": "smspace.api",
@@ -87,3 +89,4 @@ if TYPE_CHECKING:
     from smspace.metrics.spatial import SpatialScores
     from smspace.train.config import TrainConfig
     from smspace.train.loader import Batch, TransitionStream
+    from smspace.train.worker_batches import worker_batches

@@ -108,6 +108,25 @@ def test_batches_are_named_and_leave_workers_as_one_buffer_of_the_same_values():
         np.testing.assert_array_equal(rows_of(via_workers[worker::2]), rows_of(alone))
 
 
+@pytest.mark.parametrize("workers", [1, 2, 3])
+def test_worker_batches_deal_many_batches_per_item_in_the_dataloaders_own_order(workers):
+    """worker_batches sends 64 batches per queue item and deals them out as a DataLoader would,
+    batch by batch: the same stream, its short last batches and uneven workers included, and the
+    same continuation on resume."""
+    from smspace.train.worker_batches import worker_batches
+
+    for kw in (dict(seed=3, window=2, epochs=2), dict(seed=5, window=1, epochs=1, batch_size=77)):
+        by_dataloader = list(DataLoader(TransitionStream(DATASET, **kw), batch_size=None, num_workers=workers))
+        dealt = list(worker_batches(TransitionStream(DATASET, **kw), workers))
+        assert [len(b[0]) for b in dealt] == [len(b[0]) for b in by_dataloader]
+        np.testing.assert_array_equal(rows_of(dealt), rows_of(by_dataloader))
+    resumed = [TransitionStream(DATASET, seed=2, window=1) for _ in range(2)]
+    for stream in resumed:
+        stream.load_state_dict({"seed": 2, "batch_size": 100, "batches_consumed": 13})
+    by_dataloader = take(DataLoader(resumed[0], batch_size=None, num_workers=workers), 70)
+    np.testing.assert_array_equal(rows_of(take(worker_batches(resumed[1], workers), 70)), rows_of(by_dataloader))
+
+
 def test_resume_continues_the_exact_stream():
     full = rows_of(take(TransitionStream(DATASET, seed=9, window=2), 120))
     first = TransitionStream(DATASET, seed=9, window=2)

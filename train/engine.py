@@ -21,7 +21,6 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 from torch.nn.parallel import DistributedDataParallel
-from torch.utils.data import DataLoader
 
 from smspace.common.errors import SmspaceError
 from smspace.common.progress import Progress
@@ -31,6 +30,7 @@ from smspace.train.distributed import SINGLE, Ranks, mean_over_ranks, ranks_agre
 from smspace.train.ensemble import Stacked, adam_state_of_run, load_adam_state
 from smspace.train.model import build_model, prediction_loss
 from smspace.train.precision import autocast, compiled
+from smspace.train.worker_batches import worker_batches
 
 # --- 1. the network and its optimiser -------------------------------------------------------------
 
@@ -479,10 +479,9 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, str]:
 
 
 def _batches(member: Member) -> Iterator[tuple[torch.Tensor, ...]]:
-    """A member's batches: from the stream itself in this process (a DataLoader without workers
-    only wraps it, at a third of the loader's time), else through its DataLoader workers."""
-    workers = member.cfg.loader_workers
-    return iter(member.stream if workers == 0 else DataLoader(member.stream, batch_size=None, num_workers=workers))
+    """A member's batches: from the stream itself in this process, else through its DataLoader
+    workers, many batches per queue item (train/worker_batches.py)."""
+    return worker_batches(member.stream, member.cfg.loader_workers)
 
 
 def _next_batch(batches) -> tuple[torch.Tensor, ...]:
