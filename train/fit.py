@@ -261,10 +261,14 @@ def recorded_outcome(runs: list[RunDir]) -> Iterator[None]:
 
 
 def _mark(runs: list[RunDir], state: str, message: str) -> None:
-    """Each run's status, with the step of its last evaluation (hence of its checkpoint)."""
+    """Each run's status, with the step of its checkpoint, read from it: a stop that fell between
+    an evaluation's checkpoint and its status (written after) left the status one evaluation behind."""
 
     def mark(run: RunDir) -> None:
-        step = run.status()["step"]
+        try:
+            step = run.checkpoint_step()
+        except SmspaceError:  # unreadable: the status says what it last knew
+            step = run.status()["step"]
         run.set_status(state, step, " ".join(message.replace("{step}", str(step)).split()))
 
     run_within([lambda run=run: mark(run) for run in runs])
