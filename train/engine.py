@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -423,7 +423,7 @@ def train(
 
     if step == 0 and not any(m.rows for m in members):  # resumed from a step-0 checkpoint: recorded already
         record(0, np.full(count, math.nan), 0.0)
-    batches = [_batches(m) for m in members]
+    batches = [worker_batches(m.stream, m.cfg.loader_workers) for m in members]  # train/worker_batches.py
     check_each_step = device.type == "cpu"  # .item() is free on a CPU, a sync on a GPU
     loss_sum = torch.zeros(count, dtype=torch.float32, device=device)
     loss_count = 0
@@ -476,12 +476,6 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, str]:
     prefix = "" if len(rows) == 1 else "median "
     shown = {"loss": ("eval_loss", ".4g"), "D_topo": ("d_topo", ".3g"), "D_metric": ("d_metric", ".3g")}
     return {prefix + name: format(float(np.median([r[key] for r in rows])), fmt) for name, (key, fmt) in shown.items()}
-
-
-def _batches(member: Member) -> Iterator[tuple[torch.Tensor, ...]]:
-    """A member's batches: from the stream itself in this process, else through its DataLoader
-    workers, many batches per queue item (train/worker_batches.py)."""
-    return worker_batches(member.stream, member.cfg.loader_workers)
 
 
 def _next_batch(batches) -> tuple[torch.Tensor, ...]:
