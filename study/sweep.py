@@ -331,7 +331,10 @@ def _mark_stopped(runs: list[RunDir], state: str, line: str) -> None:
 
     def mark(run: RunDir) -> None:
         now = RunDir.open(run.store)
-        if now.status()["state"] in ("running", "stale"):
+        state_now = now.status()["state"]
+        # "created" with a checkpoint: its worker was stopped between the first checkpoint and the
+        # status written after it (seen under load); one with none never started and stays so
+        if state_now in ("running", "stale") or (state_now == "created" and now.has_checkpoint()):
             run.set_status(state, now.checkpoint_step(), line)  # the step it resumes from
 
     run_within([lambda run=run: mark(run) for run in runs])

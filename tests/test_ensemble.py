@@ -461,6 +461,20 @@ def test_an_interrupted_sweep_says_interrupted_as_a_lone_fit_does(tmp_path):
     assert listed.exit_code == 0 and "interrupted" in listed.output and "stale" not in listed.output, listed.output
 
 
+def test_a_sweep_stopped_before_a_runs_first_status_marks_it_all_the_same(tmp_path):
+    """Under load, SIGTERM fell between a run's first checkpoint and the status written after it:
+    the run stayed "created" beside its checkpoint while its siblings said "interrupted". A run
+    with no checkpoint never started, and says so."""
+    from smspace.study.sweep import _mark_stopped
+
+    started, untouched = (RunDir.create(tmp_path / name, config("MM", 1), overwrite=False) for name in "ab")
+    started.save_checkpoint({"step": 0})
+    _mark_stopped([started, untouched], "interrupted", "interrupted; the same sweep resumes it")
+    status = started.status()
+    assert (status["state"], status["step"]) == ("interrupted", 0), status
+    assert untouched.status()["state"] == "created"
+
+
 def _sweep_with_checkpoints(tmp_path, steps: int):
     """A two-worker grid sweep started as a process, once each of its 6 runs has a checkpoint."""
     import subprocess

@@ -209,9 +209,12 @@ class RunView:
                 "train it anew with --overwrite"
             )
 
+    def has_checkpoint(self) -> bool:
+        return self.store.exists(CHECKPOINT)
+
     def checkpoint_step(self) -> int:
         """The step of the last checkpoint; 0 when there is none yet."""
-        return int(self.load_checkpoint()["step"]) if self.store.exists(CHECKPOINT) else 0
+        return int(self.load_checkpoint()["step"]) if self.has_checkpoint() else 0
 
     def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
         return self._loaded(self._checkpoint_bytes(), f"{self.url}/{CHECKPOINT}", device)
