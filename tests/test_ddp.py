@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from smspace.train.distributed import PEER_LOST
+from smspace.train.distributed import INTERRUPTED, PEER_LOST
 from smspace.train.launch import _cause
 from smspace.train.run_dir import RunDir
 from tests.conftest import BIN, SAMPLES
@@ -102,6 +102,8 @@ def test_rank_zeros_own_failure_is_the_cause_whichever_rank_ended_first():
     assert _cause([(0, 1), (1, abort)]) == (0, 1)
     assert _cause([(1, abort), (0, PEER_LOST)]) == (1, abort)  # rank 0 only lost its peer: the abort is the cause
     assert _cause([(1, 2), (0, PEER_LOST)]) == (1, 2)
+    # seen together in one poll, rank 0 first: rank 1's interruption is still the cause
+    assert _cause([(0, PEER_LOST), (1, INTERRUPTED)]) == (1, INTERRUPTED)
 
 
 def test_a_nan_on_the_ranks_stops_every_rank_at_once(tmp_path):

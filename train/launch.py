@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable, Iterator
 from datetime import timedelta
 from functools import partial
+from typing import NoReturn
 
 import torch.distributed as dist
 
@@ -74,14 +75,24 @@ def rank_of(plan: FitPlan, say: Callable[[str], None]) -> Iterator[tuple[Ranks, 
             yield ranks, run or RunDir(plan.where)
     except KeyboardInterrupt:
         if launched:
-            sys.exit(INTERRUPTED)  # the run's status says it; the launcher prints the line
+            _leave_now(INTERRUPTED)  # the run's status says it; the launcher prints the line
         raise
     except PeerLost:
         if launched:  # the launcher names the rank that died, in one line
-            sys.exit(PEER_LOST)
+            _leave_now(PEER_LOST)
         raise  # under torchrun this rank says it
     finally:
         leave(ranks)
+
+
+def _leave_now(code: int) -> NoReturn:
+    """A launched rank stopped early exits at once, skipping gloo's teardown (the process group's,
+    and DDP's at interpreter exit): with the other rank's collective still pending, that teardown
+    aborted now and then under load (SIGABRT, CI). Nothing is left to do: rank 0 recorded the
+    status on its way here, the claims are released, and the launcher prints the line."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 @contextlib.contextmanager
@@ -210,7 +221,9 @@ def _cause(exits: list[tuple[int, int]]) -> tuple[int, int] | None:
     own = [(r, c) for r, c in failures if c not in (PEER_LOST, -signal.SIGTERM, INTERRUPTED)]
     said = [(r, c) for r, c in own if r == 0 and c > 0]  # rank 0 failed by itself (a lost peer would
     # be PEER_LOST) and said why; another rank dying as the group came down did not cause it
-    return (said or own or failures or [None])[0]
+    interrupted = [(r, c) for r, c in failures if c == INTERRUPTED]  # before the peer that lost it,
+    # whichever the launcher saw end first
+    return (said or own or interrupted or failures or [None])[0]
 
 
 def _how(code: int) -> str:
