@@ -176,5 +176,7 @@ def _study_command(ctx, study_file, overrides, lake, out, overwrite, executor, w
     _echo_finals(runs)
 
 
+from smspace.bench import cli as _bench  # noqa: E402, F401  (adds smtrain bench and smtrain leaderboard)
+
 if __name__ == "__main__":
     sys.exit(main(prog_name="smtrain"))

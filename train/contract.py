@@ -1,7 +1,8 @@
 """The contract every model is held to (docs/API.md, "Plugins"), checked once on a probe batch
 before a run folder is written: `forward(m_t, s_t, m_t1)` gives exactly (B, N_s) float32 for
 (B, N_s) targets (a (B, 1) output would broadcast in the loss and train silently), `encode(m)`
-exactly (B, N_h), both finite. Broken, it is one line naming the model and what it gave.
+exactly (B, N_h), both finite; a model's own `objective(m_t, s_t, m_t1, s_t1)`, where it has one,
+a finite float32 scalar that backpropagates. Broken, it is one line naming the model and what it gave.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import torch
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError
 from smspace.train.config import TrainConfig
-from smspace.train.model import build_model, model_label, model_plugin, prediction_loss
+from smspace.train.model import build_model, has_objective, model_label, model_plugin, prediction_loss
 
 
 def probe_batch_size(*sizes: int) -> int:
@@ -43,8 +44,17 @@ def check_model(cfg: TrainConfig, n_motor: int, n_sensor: int) -> None:
         _expect(label, "encode(m)", h, (batch, n_h), f"(B, N_h) = ({batch}, {n_h})")
         if not any(p.requires_grad for p in model.parameters()):
             raise SmspaceError(f"{label} has no trainable parameters")
+        if has_objective(model):
+            s_t1 = torch.rand(batch, n_sensor, generator=generator)
+            with plugins.guarded(plugin, "in objective() on a probe batch"):
+                loss = model.objective(m_t, s_t, m_t1, s_t1)
+            _expect(label, "objective(m_t, s_t, m_t1, s_t1)", loss, (), "a scalar, shape ()")
+        else:
+            loss = prediction_loss(pred, s_t)
+        if not loss.requires_grad:
+            raise SmspaceError(f"{label}: its training loss does not depend on any trainable parameter")
         with plugins.guarded(plugin, "in backward() on a probe batch"):
-            prediction_loss(pred, s_t).backward()
+            loss.backward()
 
 
 def _expect(label: str, call: str, out: Any, shape: tuple[int, ...], spelled: str) -> None:

@@ -28,7 +28,7 @@ from smspace.metrics import spatial_scores
 from smspace.train.config import TrainConfig
 from smspace.train.distributed import SINGLE, Ranks, mean_over_ranks, ranks_agree
 from smspace.train.ensemble import Stacked, adam_state_of_run, load_adam_state
-from smspace.train.model import build_model, prediction_loss
+from smspace.train.model import Method, build_model, has_objective, prediction_loss
 from smspace.train.precision import autocast, compiled
 from smspace.train.worker_batches import worker_batches
 
@@ -127,12 +127,17 @@ def _upgrade(checkpoint: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> 
 Loss = Callable[..., torch.Tensor]
 
 
-def step_loss(forward: Callable[..., torch.Tensor], precision: str, device: torch.device) -> Loss:
+def step_loss(
+    forward: Callable[..., torch.Tensor], precision: str, device: torch.device, objective: bool = False
+) -> Loss:
     """The forward pass and loss of a training step in `precision` (the loss itself in fp32): for a
-    lone model and a stacked ensemble alike (whose `forward` gives each run's own loss, (R,))."""
+    lone model and a stacked ensemble alike (whose losses are each run's own, (R,)). `objective`:
+    `forward` is the model's own objective, given s_t1 too (train/model.py, has_objective)."""
 
     def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
         with autocast(precision, device):
+            if objective:
+                return forward(m_t, s_t, m_t1, s_t1).float()
             pred = forward(m_t, s_t, m_t1)
         return prediction_loss(pred.float(), s_t1)
 
@@ -209,7 +214,8 @@ class SingleLearner:
         """The model the steps run through: wrapped in DDP (gradients averaged over the ranks) when
         there are several, built at the first step, after any checkpoint was loaded."""
         if self._trained is None:
-            self._trained = DistributedDataParallel(self.model) if self.ranks.distributed else self.model
+            trained = Method(self.model, "objective") if has_objective(self.model) else self.model
+            self._trained = DistributedDataParallel(trained) if self.ranks.distributed else trained
         return self._trained
 
     def set_lr(self, lr: float) -> None:
@@ -219,7 +225,8 @@ class SingleLearner:
     def _step_loss(self) -> Callable:
         """The forward pass and loss of a step, in the run's precision, compiled if decided."""
         if self._loss is None:
-            loss = step_loss(self._training_model(), self.precision, self.data.m_regular.device)
+            device, own = self.data.m_regular.device, has_objective(self.model)
+            loss = step_loss(self._training_model(), self.precision, device, own)
             self._loss = compiled(loss, self.compile)
         return self._loss
 
@@ -260,7 +267,9 @@ class EnsembleLearner:
     ):
         self.stacked = Stacked([build(cfg, n_motor, n_sensor, device)[0] for cfg in cfgs])
         self.optimizer = adam(self.stacked.parameters(), cfgs[0].lr_start)
-        loss = step_loss(self.stacked.forward, cfgs[0].precision, data[0].m_regular.device)
+        own = has_objective(self.stacked.model)
+        forward = self.stacked.objective if own else self.stacked.forward
+        loss = step_loss(forward, cfgs[0].precision, data[0].m_regular.device, own)
         self.compile = compile
         self._loss = compiled(loss, compile)
         self.m_regular = torch.stack([d.m_regular for d in data])

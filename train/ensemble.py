@@ -16,16 +16,7 @@ import torch
 from torch import nn
 from torch.func import functional_call, stack_module_state, vmap
 
-
-class _Encode(nn.Module):
-    """`model.encode` as a forward, for functional_call (which calls forward)."""
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
-
-    def forward(self, m: torch.Tensor) -> torch.Tensor:
-        return self.model.encode(m)
+from smspace.train.model import Method
 
 
 class Stacked:
@@ -36,13 +27,9 @@ class Stacked:
         self.params, self.buffers = stack_module_state(list(models))
         self.keys = list(models[0].state_dict())  # the lone model's state-dict order
         base = copy.deepcopy(models[0]).to("meta")
+        self.model = base  # the architecture (meta tensors): what it is, not its weights
         self._forward = vmap(lambda p, b, *x: functional_call(base, (p, b), x))
-        encoder = _Encode(base)
-        self._encode = vmap(
-            lambda p, b, m: functional_call(
-                encoder, ({f"model.{k}": v for k, v in p.items()}, {f"model.{k}": v for k, v in b.items()}), (m,)
-            )
-        )
+        self._encode, self._objective = _vmapped(Method(base, "encode")), _vmapped(Method(base, "objective"))
 
     def parameters(self) -> list[torch.Tensor]:
         return list(self.params.values())  # named_parameters order: the lone optimiser's indices
@@ -53,6 +40,10 @@ class Stacked:
     def encode(self, m: torch.Tensor) -> torch.Tensor:
         return self._encode(self.params, self.buffers, m)
 
+    def objective(self, m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
+        """Each run's own loss, (R,), for models that define one (train/model.py, has_objective)."""
+        return self._objective(self.params, self.buffers, m_t, s_t, m_t1, s_t1)
+
     def run_state(self, r: int) -> dict[str, torch.Tensor]:
         tensors = self.params | self.buffers
         return {k: tensors[k][r].detach().clone() for k in self.keys}
@@ -61,6 +52,16 @@ class Stacked:
     def load_run(self, r: int, state: dict[str, torch.Tensor]) -> None:
         for k, tensor in (self.params | self.buffers).items():
             tensor[r].copy_(state[k])
+
+
+def _vmapped(method: Method):
+    """A method of the model run on each run's slice of the stacked state."""
+
+    def call(p: dict[str, torch.Tensor], b: dict[str, torch.Tensor], *x: torch.Tensor) -> torch.Tensor:
+        named = {f"model.{k}": v for k, v in p.items()}, {f"model.{k}": v for k, v in b.items()}
+        return functional_call(method, named, x)
+
+    return vmap(call)
 
 
 def adam_state_of_run(stacked: Stacked, opt: torch.optim.Adam, r: int, lr: float) -> dict[str, Any]:

@@ -84,6 +84,25 @@ def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pred - target).pow(2).sum(dim=-1).mean(dim=-1)
 
 
+def has_objective(model: nn.Module) -> bool:
+    """Whether a model trains on a loss of its own, `objective(m_t, s_t, m_t1, s_t1)` (a scalar),
+    rather than the prediction loss of its forward: a benchmark entry that learns otherwise (an
+    autoencoder of motor states, a contrastive objective) is a model like any other."""
+    return callable(getattr(model, "objective", None))
+
+
+class Method(nn.Module):
+    """One method of a model as a module's forward: what DDP wraps (its gradient hooks fire only
+    through forward) and what an ensemble's functional_call runs."""
+
+    def __init__(self, model: nn.Module, name: str):
+        super().__init__()
+        self.model, self.name = model, name
+
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        return getattr(self.model, self.name)(*inputs)
+
+
 def model_plugin(name: str) -> Plugin | None:
     """The package a model comes from (None: smspace's own)."""
     return MODELS.plugin(name)

@@ -1,0 +1,80 @@
+"""`smtrain bench` and `smtrain leaderboard` (docs/BENCHMARK.md): added to smtrain's group by
+study/cli.py, since a benchmark composes generation, studies and training."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import click
+
+from smspace.common.cli import MAX_WORKERS, default_workers, executor_option, friendly_errors, on_interrupt
+from smspace.common.errors import SmspaceError
+from smspace.train.cli import main
+
+BENCH_LAKE = "data/bench-lake"  # a task fixes its datasets' sizes: they live apart from one's own lake
+BENCH_OUT = "runs/bench"
+
+
+def parse_entry(spec: str):
+    """NAME, or NAME:key=value,key=value (values in TOML: 0.2, 16, "text", [1, 2])."""
+    from smspace.bench.run import Entry
+
+    name, _, given = spec.partition(":")
+    params = {}
+    for pair in filter(None, given.split(",")):
+        key, eq, value = pair.partition("=")
+        if not eq or not key.strip():
+            raise SmspaceError(f"entry {spec!r}: parameters are NAME:key=value,key=value")
+        try:
+            params[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            params[key.strip()] = value  # a bare word: a string
+    return Entry(name.strip(), params)
+
+
+@main.command()
+@click.argument("suite")
+@click.argument("entries", nargs=-1, required=True)
+@click.option("--lake", default=BENCH_LAKE, show_default=True, help="Where the suite's datasets are generated.")
+@click.option("--out", default=BENCH_OUT, show_default=True, help="Folder (or fsspec URL) for the results.")
+@click.option(
+    "--workers", type=click.IntRange(1, MAX_WORKERS), default=None, help="Ensembles trained at once [default: cores]."
+)
+@click.option("--gen-workers", type=click.IntRange(1, MAX_WORKERS), default=None, help="Generator processes.")
+@executor_option("ensembles train")
+@click.option("--overwrite", is_flag=True, help="Replace results in --out made with another config.")
+@friendly_errors
+def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite) -> None:
+    """Run ENTRIES (models, NAME:key=value for their parameters, or `isomap`) on every task of
+    SUITE (NAME or NAME@VERSION: spatial, tiny); resumable: the same command continues."""
+    from smspace.bench.run import run_bench
+    from smspace.bench.suite import get_suite
+
+    chosen = get_suite(suite)
+    parsed = [parse_entry(e) for e in entries]
+    workers = workers or default_workers()
+    message = f"interrupted; the results in {out} keep their last checkpoints: the same command resumes them"
+    with on_interrupt(message):
+        folders = run_bench(
+            chosen, parsed, lake, out, workers, gen_workers or workers, executor, overwrite,
+            notify=lambda line: click.echo(line, err=True),
+        )  # fmt: skip
+    for folder in folders:
+        click.echo(folder.url)
+
+
+@main.command()
+@click.argument("results", nargs=-1, required=True)
+@click.option("--out", default="leaderboard", show_default=True, type=click.Path(path_type=Path))
+@friendly_errors
+def leaderboard(results, out) -> None:
+    """Write leaderboard.md, .json and .png in --out from the results under RESULTS (folders or
+    fsspec URLs, such as runs/bench or s3://bucket/bench)."""
+    from smspace.bench.leaderboard import write_leaderboard
+
+    left_out: list[str] = []
+    for path in write_leaderboard(list(results), out, left_out):
+        click.echo(path)
+    for where in left_out:
+        click.echo(f"smtrain: note: {where} is left out: its first session has not ended (no scores yet)", err=True)

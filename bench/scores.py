@@ -1,0 +1,48 @@
+"""An entry's scores on a task, run by run (one world and mode each): the paper's D_topo and
+D_metric, the held-out linear probe of p from h (metrics/probe.py) and TwoNN's intrinsic dimension
+of h (metrics/dimension.py), all on the regular sampling, and the wall time the run took."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from smspace.metrics import spatial_scores
+from smspace.metrics.dimension import two_nn_dimension
+from smspace.metrics.probe import probe_r2
+from smspace.train.run_dir import RunView
+
+SCORES = ("d_topo", "d_metric", "probe_r2", "twonn")
+LOWER_IS_BETTER = {"d_topo": True, "d_metric": True, "probe_r2": False, "twonn": None}  # None: no order
+
+
+def scores_of(h: np.ndarray, p: np.ndarray, seed: int) -> dict[str, float]:
+    spatial = spatial_scores(h, p)
+    return {"d_topo": spatial.d_topo, "d_metric": spatial.d_metric, **beyond_the_paper(h, p, seed)}
+
+
+def beyond_the_paper(h: np.ndarray, p: np.ndarray, seed: int) -> dict[str, float]:
+    try:
+        dimension = two_nn_dimension(h)
+    except ValueError:  # fewer than 3 distinct points: h collapsed
+        dimension = math.nan
+    return {"probe_r2": probe_r2(h, p, seed=seed), "twonn": dimension}
+
+
+def world_and_mode(dataset_id: str) -> tuple[int, str]:
+    """setup-seedW-MODE -> (W, MODE)."""
+    head, mode = dataset_id.rsplit("-", 1)
+    return int(head.rsplit("-seed", 1)[1]), mode
+
+
+def run_scores(run: RunView) -> dict[str, Any]:
+    """Scores at the run's last evaluation; D_topo and D_metric as training recorded them."""
+    rows = run.metrics()
+    last = rows[-1]
+    h, p = run.embeddings(last["step"])
+    cfg = run.config
+    world, mode = world_and_mode(cfg.dataset_id)
+    return {"world": world, "mode": mode, "step": last["step"], "wall_s": last["elapsed_s"], "run": run.name,
+            "d_topo": last["d_topo"], "d_metric": last["d_metric"], **beyond_the_paper(h, p, cfg.seed)}  # fmt: skip
