@@ -2,18 +2,27 @@
 
 from __future__ import annotations
 
+import itertools
+import json
 import math
+import shutil
+from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
 
+from smspace.bench.run import check_task
+from smspace.bench.suite import SUITES, get_suite
+from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
+from smspace.metrics.probe import probe_r2
 from smspace.train.config import TrainConfig
 from smspace.train.engine import build
 from smspace.train.fit import fit, train_ensemble
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES
+from .conftest import SAMPLES, run_cmd
 from .numerics import assert_same_weights
 
 BASELINES = ["random-encoder", "motor-autoencoder", "contrastive"]
@@ -41,7 +50,8 @@ def test_a_baseline_trains_on_its_own_objective_alone_and_in_an_ensemble(tmp_pat
     rows = alone.metrics()
     assert rows[-1]["train_loss"] < rows[1]["train_loss"] or model == "random-encoder", rows
     manifest = Dataset.open(cfgs[0].dataset).manifest
-    initial = build(alone.config, manifest.n_motor, math.prod(manifest.sensor_shape), torch.device("cpu"))[0].state_dict()
+    shape = manifest.n_motor, math.prod(manifest.sensor_shape)
+    initial = build(alone.config, *shape, torch.device("cpu"))[0].state_dict()
     moved = {k for k, v in weights(alone).items() if not torch.equal(v, initial[k])}
     if model == "random-encoder":
         assert moved and not any(k.startswith("encoder") for k in moved), moved
@@ -55,3 +65,108 @@ def test_the_baselines_are_registered_as_plugins_are():
     for name in BASELINES:
         plugin = model_plugin(name)
         assert plugin is not None and plugin.distribution == "smspace" and len(plugin.code_sha256) == 16, plugin
+
+
+def test_a_suites_later_versions_only_add_tasks():
+    """What version N measured stays comparable in version N+1: every task is kept, unchanged."""
+    for name, versions in SUITES.items():
+        assert [s.version for s in versions] == list(range(1, len(versions) + 1)), name
+        for before, after in itertools.pairwise(versions):
+            assert set(before.tasks) <= set(after.tasks), f"{after.label} drops or changes a task of {before.label}"
+            kept = {t.name: t.datasets_hash for t in before.tasks}
+            assert all(kept.get(t.name, t.datasets_hash) == t.datasets_hash for t in after.tasks)
+    assert len(SUITES["tiny"]) >= 2  # the rule is exercised
+
+
+def test_the_datasets_a_suite_fixed_are_the_ones_generation_configures():
+    """A change to generation's configs (a shard size, a default) changes a task's datasets: it
+    must then be a new task in a new version, never the old one measured on other data."""
+    for versions in SUITES.values():
+        for suite in versions:
+            for task in suite.tasks:
+                check_task(suite, task)
+    changed = replace(SUITES["tiny"][0].tasks[0], transitions=3001)
+    with pytest.raises(SmspaceError, match="configures its datasets differently"):
+        check_task(SUITES["tiny"][0], changed)
+
+
+def test_suite_names_and_versions_are_checked():
+    assert get_suite("tiny").version == len(SUITES["tiny"]) and get_suite("tiny@1").version == 1
+    for bad, said in [("nope", "unknown suite 'nope'"), ("tiny@0", "versions 1..2"), ("tiny@x", "versions 1..2")]:
+        with pytest.raises(SmspaceError, match=said):
+            get_suite(bad)
+
+
+@pytest.fixture(scope="module")
+def tiny_bench(tmp_path_factory):
+    """The tiny suite run end to end by the command line: a model of another package (the plugin
+    demo's `shallow`) and the non-learned `isomap`, then the leaderboard of both."""
+    root = tmp_path_factory.mktemp("bench")
+    args = ["smtrain", "bench", "tiny@1", "shallow", "isomap", "--lake", root / "lake", "--out", root / "out"]
+    done = run_cmd(*args, "--workers", 1, timeout=600)
+    assert done.returncode == 0, done.stderr
+    board = run_cmd("smtrain", "leaderboard", root / "out", "--out", root / "board")
+    assert board.returncode == 0, board.stderr
+    return root, args
+
+
+def test_a_plugin_entry_runs_the_tiny_suite_and_lands_on_the_leaderboard(tiny_bench):
+    root, _ = tiny_bench
+    record = json.loads((root / "out/tiny-v1/shallow/grid/bench.json").read_text())
+    assert (
+        record["suite"] == "tiny"
+        and record["version"] == 1
+        and record["task"] == get_suite("tiny@1").task("grid").protocol()
+    )
+    assert record["entry"]["plugin"]["distribution"] == "smspace-plugin-demo"
+    assert [s["wall_s"] > 0 for s in record["sessions"]] == [True]
+    board = json.loads((root / "board/leaderboard.json").read_text())
+    cells = {(c["entry"], c["task"], c["mode"], c["score"]): c for c in board["cells"]}
+    assert {(e, m) for e, _, m, _ in cells} == {(e, m) for e in ("shallow", "isomap") for m in ("MM", "MME")}
+    for cell in cells.values():
+        assert cell["worlds"] == [0, 1] and math.isfinite(cell["mean"]) and math.isfinite(cell["std"]), cell
+    # the scores are those of the runs' own embeddings, measured again here
+    run = RunDir.open(next(p for p in (root / "out/tiny-v1/shallow/grid").iterdir() if "-MM-" in p.name))
+    h, p = run.embeddings(run.metrics()[-1]["step"])
+    expected = np.mean([r["probe_r2"] for r in json.loads((root / "out/tiny-v1/shallow/grid/scores.json").read_text())
+                        if r["mode"] == "MM"])  # fmt: skip
+    assert cells[("shallow", "grid", "MM", "probe_r2")]["mean"] == pytest.approx(expected)
+    assert any(r["run"] == run.name and r["probe_r2"] == pytest.approx(probe_r2(h, p, seed=run.config.seed))
+               for r in json.loads((root / "out/tiny-v1/shallow/grid/scores.json").read_text()))  # fmt: skip
+    text = (root / "board/leaderboard.md").read_text()
+    assert "| shallow |" in text and "| isomap |" in text and "## Wall time" in text
+    assert (root / "board/leaderboard.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_same_bench_command_resumes_and_records_its_session(tiny_bench):
+    root, args = tiny_bench
+    again = run_cmd(*args, "--workers", 1, timeout=600)
+    assert again.returncode == 0, again.stderr
+    record = json.loads((root / "out/tiny-v1/shallow/grid/bench.json").read_text())
+    assert len(record["sessions"]) == 2 and all(s["wall_s"] is not None for s in record["sessions"])
+
+
+def test_the_leaderboard_refuses_what_would_not_compare(tiny_bench, tmp_path):
+    root, _ = tiny_bench
+    copy = tmp_path / "copy"
+    shutil.copytree(root / "out", copy)
+    again = run_cmd("smtrain", "leaderboard", root / "out", copy, "--out", tmp_path / "b")
+    assert again.returncode != 0 and "not pooled" in again.stderr and len(again.stderr.splitlines()) == 1
+    edited = copy / "tiny-v1/shallow/grid/bench.json"
+    record = json.loads(edited.read_text())
+    record["task"]["steps"] = 30
+    edited.write_text(json.dumps(record))
+    bad = run_cmd("smtrain", "leaderboard", copy, "--out", tmp_path / "b")
+    assert bad.returncode != 0 and "another protocol" in bad.stderr and "(steps differ)" in bad.stderr
+    (copy / "tiny-v1/shallow/grid/scores.json").unlink()
+    partial = run_cmd("smtrain", "leaderboard", copy, "--out", tmp_path / "b")
+    assert partial.returncode == 0 and "is left out" in partial.stderr
+    cells = json.loads((tmp_path / "b/leaderboard.json").read_text())["cells"]
+    assert {c["entry"] for c in cells} == {"isomap"}
+
+
+def test_a_bench_of_an_unknown_entry_writes_nothing(tmp_path):
+    done = run_cmd("smtrain", "bench", "tiny", "nonesuch", "--lake", tmp_path / "lake", "--out", tmp_path / "out")
+    assert done.returncode != 0 and "unknown model 'nonesuch'" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+    assert not (tmp_path / "lake").exists()
