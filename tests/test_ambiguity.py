@@ -21,7 +21,7 @@ def test_the_levels_are_registered_and_the_study_file_grids_over_them():
     assert study.worlds >= 4 and study.modes == ["MM", "MME"]
 
 
-@pytest.mark.parametrize(("setup", "period"), [("ambig2", 1.5), ("ambig3", 0.75)])
+@pytest.mark.parametrize(("setup", "period"), [("ambig2", 1.5), ("ambig3", 0.75), ("floor1", 1.0), ("floor2", 2.0)])
 def test_views_one_period_apart_are_the_same_and_half_a_period_apart_are_not(setup, period):
     world = get_setup(setup).build(1)
     xy = np.array([[0.4, -0.3], [-1.1, 0.9]])
@@ -47,3 +47,21 @@ def test_a_shorter_period_measures_as_more_ambiguous(tmp_path):
         tr = Dataset.open(f"{setup}-seed0-MM", tmp_path).read_all()
         distances[setup] = view_ambiguity(tr.p_t.astype(np.float64), tr.s_t)["lookalike_distance"]
     assert distances["ambig3"] > 3 * distances["ambig1"], distances
+
+
+def test_the_period_dial_holds_the_motifs_density():
+    """Levels 2 and 3 changed the motif's density with the period (1.33 and 3.6 discs per m²); the
+    dial's floors draw 2 per m² at every period: the same discs, in the same proportions, per m²."""
+    from smspace_ambiguous_room import DIAL
+    from smspace_ambiguous_room.floor import TEXELS_PER_M
+
+    assert {"floor1", "floor2", "floor3", "floor24"} <= set(setup_names())
+    covered = {}
+    for period, setup in DIAL.items():
+        floor = get_setup(setup.name).build(0).floor
+        assert floor.shape[0] == 24 * TEXELS_PER_M
+        texels = np.ascontiguousarray(floor).view(np.uint32).ravel()  # one RGBA texel per value
+        _, counts = np.unique(texels, return_counts=True)
+        covered[period] = 1 - counts.max() / len(texels)  # the ground is the commonest colour
+    # the share of the floor under discs, one world: alike across periods (a 3.6 vs 1.5 density doubled it)
+    assert max(covered.values()) < 2 * min(covered.values()), covered
