@@ -36,11 +36,14 @@ class Task:
 
     def datasets(self) -> dict[str, str]:
         """{dataset id: config hash} as generation configures them today."""
-        from smspace.datagen.setups import get_setup
+        from smspace.datagen.setups import get_setup, setup_plugin
 
-        shard = get_setup(self.setup).default_shard_size
+        shard, plugin = get_setup(self.setup).default_shard_size, setup_plugin(self.setup)
+        record = plugin.record() if plugin is not None else None  # a plugin's code is part of its datasets'
         return {
-            dataset_id(self.setup, seed, mode): GenConfig(self.setup, mode, seed, self.transitions, shard).config_hash
+            dataset_id(self.setup, seed, mode): GenConfig(
+                self.setup, mode, seed, self.transitions, shard, plugin=record
+            ).config_hash
             for seed in self.world_seeds
             for mode in self.modes
         }
@@ -82,12 +85,20 @@ GRID = Task("grid", "grid", MODES, 5, 150_000, 20_000, 5_000, datasets_hash="352
 GRID6 = Task("grid6", "grid6", MODES, 3, 150_000, 20_000, 5_000, datasets_hash="7a20e5b934466730")
 ARM = Task("arm", "arm", MODES, 3, 60_000, 40_000, 10_000, datasets_hash="1bb3b82c969529d4")
 
+# Version 2 adds the ambiguous rooms' period dial (examples/ambiguous-room: pip install -e it): an
+# open floor whose motif repeats every 1, 2 or 24 m at 2 discs per m², the arm above it, MM and MME
+# (MEM has no space to fold), the arm task's size.
+FLOORS = tuple(
+    Task(f"floor{period}", f"floor{period}", ("MM", "MME"), 3, 60_000, 40_000, 10_000, datasets_hash=digest)
+    for period, digest in ((1, "0aca7616d72015a6"), (2, "7670be7f1e5d03b6"), (24, "17327066d61cc821"))
+)
+
 # `tiny`: what the tests run end to end (minutes of two cores); v2 adds a task, as versions do
 TINY_GRID = Task("grid", "grid", ("MM", "MME"), 2, 3_000, 60, 30, datasets_hash="8e25481a7b4aa843")
 TINY_GRID6 = Task("grid6", "grid6", ("MM",), 1, 3_000, 60, 30, datasets_hash="6efe825bac0b07f5")
 
 SUITES: dict[str, tuple[Suite, ...]] = {
-    "spatial": (Suite("spatial", 1, (GRID, GRID6, ARM)),),
+    "spatial": (Suite("spatial", 1, (GRID, GRID6, ARM)), Suite("spatial", 2, (GRID, GRID6, ARM, *FLOORS))),
     "tiny": (Suite("tiny", 1, (TINY_GRID,)), Suite("tiny", 2, (TINY_GRID, TINY_GRID6))),
 }
 
