@@ -111,7 +111,7 @@ def run_bench(
             if entry.learns:
                 rows = _train(task, entry, lake, folder, workers, gen_workers, executor, overwrite, notify)
             else:
-                rows = _represent(task, entry, lake, folder, gen_workers, notify)
+                rows = _represent(task, entry, lake, folder, gen_workers, executor, notify)
             _check_lake(lake, suite, task)
             folder.put(SCORES, (json.dumps(rows, indent=1) + "\n").encode())
             _end(folder, session, time.monotonic() - clock)
@@ -144,15 +144,17 @@ def _train(
 
 
 def _represent(
-    task: Task, entry: Entry, lake: Store, folder: Store, gen_workers: int, notify: Callable[[str], None]
-) -> list[dict[str, Any]]:
+    task: Task, entry: Entry, lake: Store, folder: Store, gen_workers: int, executor: str,
+    notify: Callable[[str], None],
+) -> list[dict[str, Any]]:  # fmt: skip
     from smspace.datagen.generate import generate
     from smspace.datagen.setups import get_setup
 
     shard = get_setup(task.setup).default_shard_size
     generate(
-        lake, task.setup, task.modes, task.world_seeds, task.transitions, shard, workers=gen_workers, notify=notify
-    )
+        lake, task.setup, task.modes, task.world_seeds, task.transitions, shard, workers=gen_workers,
+        executor=executor, notify=notify,
+    )  # fmt: skip
     folder.make()
     rows = []
     for seed in task.world_seeds:

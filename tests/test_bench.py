@@ -170,3 +170,20 @@ def test_a_bench_of_an_unknown_entry_writes_nothing(tmp_path):
     assert done.returncode != 0 and "unknown model 'nonesuch'" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
     assert not (tmp_path / "lake").exists()
+
+
+def test_the_leaderboard_reads_results_on_object_storage(tiny_bench, tmp_path):
+    """The two files per task that a result is, published to a bucket (a moto server on
+    127.0.0.1): the leaderboard read from s3:// is the one read from the folder."""
+    from .servers import moto_s3, s3fs_for
+
+    root, _ = tiny_bench
+    with moto_s3(tmp_path / "moto.log") as env:
+        fs = s3fs_for(env)
+        for path in (root / "out").rglob("*.json"):
+            if path.name in ("bench.json", "scores.json"):
+                fs.pipe_file(f"lake/results/{path.relative_to(root / 'out').as_posix()}", path.read_bytes())
+        remote = run_cmd("smtrain", "leaderboard", "s3://lake/results", "--out", tmp_path / "remote", env=env)
+        assert remote.returncode == 0, remote.stderr
+    local = json.loads((root / "board/leaderboard.json").read_text())["cells"]
+    assert json.loads((tmp_path / "remote/leaderboard.json").read_text())["cells"] == local
