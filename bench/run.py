@@ -49,7 +49,9 @@ class Entry:
     def folder(self) -> str:
         if not self.params:
             return self.name
-        return self.name + "," + ",".join(f"{k}={v}" for k, v in sorted(self.params.items()))
+        from smspace.study.file import folder_name  # key=value,… as a study's grid names its folders
+
+        return self.name + "," + folder_name(dict(sorted(self.params.items()))).replace("/", "-").replace("\\", "-")
 
     def record(self) -> dict[str, Any]:
         """What the entry is: a registered model's package and code hash included."""

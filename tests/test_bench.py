@@ -187,3 +187,22 @@ def test_the_leaderboard_reads_results_on_object_storage(tiny_bench, tmp_path):
         assert remote.returncode == 0, remote.stderr
     local = json.loads((root / "board/leaderboard.json").read_text())["cells"]
     assert json.loads((tmp_path / "remote/leaderboard.json").read_text())["cells"] == local
+
+
+def test_an_entrys_parameters_reach_its_study_and_name_its_folder():
+    import tomllib
+
+    from smspace.bench.cli import parse_entry
+    from smspace.bench.run import study_toml
+
+    entry = parse_entry("contrastive:temperature=0.2,embedding=16,note=a/b")
+    assert entry.params == {"temperature": 0.2, "embedding": 16, "note": "a/b"}
+    assert entry.folder == "contrastive,embedding=16,note=a-b,temperature=0.2"
+    study = tomllib.loads(study_toml(get_suite("tiny@1").tasks[0], entry))
+    assert study["train"]["model"] == "contrastive" and study["train"]["model_params"] == entry.params
+    assert study["train"]["steps"] == 60 and study["study"]["worlds"] == 2
+    for bad in ("contrastive:temperature", "contrastive:=1"):
+        with pytest.raises(SmspaceError, match="NAME:key=value"):
+            parse_entry(bad)
+    with pytest.raises(SmspaceError, match="learns nothing"):
+        parse_entry("isomap:k=3").check()
