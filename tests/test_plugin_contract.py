@@ -67,6 +67,11 @@ def fit(lake: Path, out: Path, *extra):
         ("wideh", "encode(m) gave shape (7, 5) on a probe batch of 7; it must give exactly (B, N_h) = (7, 3)"),
         ("wideout", "forward(m_t, s_t, m_t1) gave shape (7, 6)"),
         ("refusing", "raised in its constructor: ValueError: RefusingNet needs at least 4 motors"),
+        (
+            "persample",
+            "objective(m_t, s_t, m_t1, s_t1) gave shape (7,) on a probe batch of 7; it must give exactly a scalar",
+        ),
+        ("detached", "its training loss does not depend on any trainable parameter"),
     ],
 )
 def test_a_model_that_breaks_the_contract_is_refused_before_a_run_folder_is_written(tiny_lake, tmp_path, model, needle):

@@ -38,17 +38,17 @@ def check_model(cfg: TrainConfig, n_motor: int, n_sensor: int) -> None:
         s_t = torch.rand(batch, n_sensor, generator=generator)
         with plugins.guarded(plugin, "in forward() on a probe batch"):
             pred = model(m_t, s_t, m_t1)
-        _expect(label, "forward(m_t, s_t, m_t1)", pred, (batch, n_sensor), f"(B, N_s) = ({batch}, {n_sensor})")
+        _expect(label, "forward(m_t, s_t, m_t1)", pred, (batch, n_sensor), batch, f"(B, N_s) = ({batch}, {n_sensor})")
         with plugins.guarded(plugin, "in encode() on a probe batch"):
             h = model.encode(m_t)
-        _expect(label, "encode(m)", h, (batch, n_h), f"(B, N_h) = ({batch}, {n_h})")
+        _expect(label, "encode(m)", h, (batch, n_h), batch, f"(B, N_h) = ({batch}, {n_h})")
         if not any(p.requires_grad for p in model.parameters()):
             raise SmspaceError(f"{label} has no trainable parameters")
         if has_objective(model):
             s_t1 = torch.rand(batch, n_sensor, generator=generator)
             with plugins.guarded(plugin, "in objective() on a probe batch"):
                 loss = model.objective(m_t, s_t, m_t1, s_t1)
-            _expect(label, "objective(m_t, s_t, m_t1, s_t1)", loss, (), "a scalar, shape ()")
+            _expect(label, "objective(m_t, s_t, m_t1, s_t1)", loss, (), batch, "a scalar, shape () (the batch's mean)")
         else:
             loss = prediction_loss(pred, s_t)
         if not loss.requires_grad:
@@ -57,12 +57,12 @@ def check_model(cfg: TrainConfig, n_motor: int, n_sensor: int) -> None:
             loss.backward()
 
 
-def _expect(label: str, call: str, out: Any, shape: tuple[int, ...], spelled: str) -> None:
+def _expect(label: str, call: str, out: Any, shape: tuple[int, ...], batch: int, spelled: str) -> None:
     if not isinstance(out, torch.Tensor):
         raise SmspaceError(f"{label}: {call} returned a {type(out).__name__}, not a tensor")
     if tuple(out.shape) != shape:
         raise SmspaceError(
-            f"{label}: {call} gave shape {tuple(out.shape)} on a probe batch of {shape[0]}; "
+            f"{label}: {call} gave shape {tuple(out.shape)} on a probe batch of {batch}; "
             f"it must give exactly {spelled} (no broadcasting)"
         )
     if out.dtype != torch.float32:

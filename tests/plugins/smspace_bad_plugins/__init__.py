@@ -139,3 +139,18 @@ class TypedNet(SoundNet):
     def __init__(self, n_motor, n_sensor, n_h, encoder_layers, predictor_layers, width: int = 8):
         super().__init__(n_motor, n_sensor, n_h, encoder_layers, predictor_layers)
         self.extra = nn.Parameter(torch.empty(width))
+
+
+class PerSampleObjectiveNet(SoundNet):
+    """Its own objective, one loss per transition ((B,), not a scalar): summed by a caller's
+    backward, it would train on B times the loss without a word."""
+
+    def objective(self, m_t, s_t, m_t1, s_t1):
+        return (self(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=-1)
+
+
+class DetachedObjectiveNet(SoundNet):
+    """Its own objective depends on no parameter: training it would change nothing."""
+
+    def objective(self, m_t, s_t, m_t1, s_t1):
+        return (s_t - s_t1).pow(2).sum(dim=-1).mean()
