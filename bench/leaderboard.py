@@ -202,7 +202,9 @@ def figure(table: list[dict[str, Any]], path: Path, head: dict[str, Any]) -> Non
                     ys.append(cell["mean"])
                     es.append(0.0 if math.isnan(cell["std"]) else cell["std"])
             ax.errorbar(xs, ys, yerr=es, fmt="o", capsize=3, label=entry)
-        ax.set_title(TITLES[score], fontsize=10)
+        if score == "twonn":  # what a representation of positions in the plane gives
+            ax.axhline(2.0, color="grey", linestyle="--", linewidth=0.8, label="_the plane")
+        ax.set_title(TITLES[score] + (" (the plane: 2, dashed)" if score == "twonn" else ""), fontsize=10)
         ax.set_xticks(range(len(cols)), [f"{t}\n{m}" for t, m in cols], fontsize=8)
         ax.set_xlim(-0.6, len(cols) - 0.4)
         if LOWER_IS_BETTER[score] and all(c["mean"] > 0 for c in table if c["score"] == score):
