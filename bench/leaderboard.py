@@ -27,8 +27,12 @@ from smspace.common.errors import SmspaceError
 from smspace.lake.store import Store, open_store
 
 DEPTH = 4  # folders below a given one where results are looked for (out/suite/entry/task)
-TITLES = {"d_topo": "D_topo (lower: better)", "d_metric": "D_metric (lower: better)",
-          "probe_r2": "held-out probe R² of p from h (higher: better)", "twonn": "TwoNN dimension of h"}  # fmt: skip
+TITLES = {
+    "d_topo": "D_topo (lower: better)",
+    "d_metric": "D_metric (lower: better)",
+    "probe_r2": "held-out probe R² of p from h (higher: better)",
+    "local_dim": "local-PCA dimension of h",
+}
 
 
 @dataclass(frozen=True)
@@ -202,9 +206,9 @@ def figure(table: list[dict[str, Any]], path: Path, head: dict[str, Any]) -> Non
                     ys.append(cell["mean"])
                     es.append(0.0 if math.isnan(cell["std"]) else cell["std"])
             ax.errorbar(xs, ys, yerr=es, fmt="o", capsize=3, label=entry)
-        if score == "twonn":  # what a representation of positions in the plane gives
+        if score == "local_dim":  # what a representation of positions in the plane gives
             ax.axhline(2.0, color="grey", linestyle="--", linewidth=0.8, label="_the plane")
-        ax.set_title(TITLES[score] + (" (the plane: 2, dashed)" if score == "twonn" else ""), fontsize=10)
+        ax.set_title(TITLES[score] + (" (the plane: 2, dashed)" if score == "local_dim" else ""), fontsize=10)
         ax.set_xticks(range(len(cols)), [f"{t}\n{m}" for t, m in cols], fontsize=8)
         ax.set_xlim(-0.6, len(cols) - 0.4)
         if LOWER_IS_BETTER[score] and all(c["mean"] > 0 for c in table if c["score"] == score):

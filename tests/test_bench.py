@@ -185,7 +185,9 @@ def test_the_leaderboard_reads_results_on_object_storage(tiny_bench, tmp_path):
                 fs.pipe_file(f"lake/results/{path.relative_to(root / 'out').as_posix()}", path.read_bytes())
         remote = run_cmd("smtrain", "leaderboard", "s3://lake/results", "--out", tmp_path / "remote", env=env)
         assert remote.returncode == 0, remote.stderr
-    local = json.loads((root / "board/leaderboard.json").read_text())["cells"]
+    here = run_cmd("smtrain", "leaderboard", root / "out", "--out", tmp_path / "local")
+    assert here.returncode == 0, here.stderr
+    local = json.loads((tmp_path / "local/leaderboard.json").read_text())["cells"]
     assert json.loads((tmp_path / "remote/leaderboard.json").read_text())["cells"] == local
 
 

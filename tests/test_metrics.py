@@ -141,3 +141,22 @@ def test_the_probe_scores_positions_on_states_it_was_not_fitted_on():
     assert probe_r2(encoded, p, seed=1) == probe_r2(encoded, p, seed=1)
     with pytest.raises(ValueError, match="all positions coincide"):
         probe_r2(encoded, np.zeros((125, 2)))
+
+
+def test_local_pca_reads_a_lattices_dimension_where_two_nn_diverges():
+    """The bench's regular samplings are lattices (the grid's 5×5 positions, the arm's joint
+    angles): there TwoNN's r₂ / r₁ is 1 and it diverges; local PCA counts the lattice's directions."""
+    from smspace.metrics.dimension import local_pca_dimension, two_nn_dimension
+
+    rng = np.random.default_rng(0)
+    plane = np.stack(np.meshgrid(np.arange(5), np.arange(5)), -1).reshape(-1, 2).astype(float)
+    cube = np.stack(np.meshgrid(*[np.arange(6)] * 3), -1).reshape(-1, 3).astype(float)
+    assert two_nn_dimension(plane) == float("inf")
+    assert local_pca_dimension(plane) == 2.0 and local_pca_dimension(plane @ rng.normal(size=(2, 3))) == 2.0
+    assert local_pca_dimension(cube) == 3.0
+    assert local_pca_dimension(np.linspace(0, 1, 50)[:, None] * np.array([[1.0, 2.0, 3.0]])) == 1.0
+    scattered = rng.uniform(size=(800, 2)) @ rng.normal(size=(2, 5))  # a random sample: both agree
+    assert 1.9 < local_pca_dimension(scattered) <= 2.0 and 1.8 < two_nn_dimension(scattered) < 2.2
+    assert local_pca_dimension(np.repeat(plane, 3, axis=0)) == 2.0  # duplicates merged
+    with pytest.raises(ValueError, match="3 distinct points"):
+        local_pca_dimension(np.zeros((10, 3)))
