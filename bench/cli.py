@@ -4,6 +4,7 @@ study/cli.py, since a benchmark composes generation, studies and training."""
 from __future__ import annotations
 
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -44,14 +45,17 @@ def parse_entry(spec: str):
 @click.option("--gen-workers", type=click.IntRange(1, MAX_WORKERS), default=None, help="Generator processes.")
 @executor_option("ensembles train")
 @click.option("--overwrite", is_flag=True, help="Replace results in --out made with another config.")
+@click.option("--task", "tasks", multiple=True, help="Only this task of the suite (repeatable) [default: all].")
 @friendly_errors
-def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite) -> None:
+def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite, tasks) -> None:
     """Run ENTRIES (models, NAME:key=value for their parameters, or `isomap`) on every task of
     SUITE (NAME or NAME@VERSION: spatial, tiny); resumable: the same command continues."""
     from smspace.bench.run import run_bench
     from smspace.bench.suite import get_suite
 
     chosen = get_suite(suite)
+    if tasks:  # a part of the suite: each result still names the version its task belongs to
+        chosen = replace(chosen, tasks=tuple(chosen.task(name) for name in dict.fromkeys(tasks)))
     parsed = [parse_entry(e) for e in entries]
     workers = workers or default_workers()
     message = f"interrupted; the results in {out} keep their last checkpoints: the same command resumes them"

@@ -165,6 +165,16 @@ def test_the_leaderboard_refuses_what_would_not_compare(tiny_bench, tmp_path):
     assert {c["entry"] for c in cells} == {"isomap"}
 
 
+def test_a_bench_of_one_task_runs_only_it(tiny_bench, tmp_path):
+    root, _ = tiny_bench
+    args = ["smtrain", "bench", "tiny@2", "isomap", "--task", "grid6", "--lake", root / "lake", "--out", tmp_path]
+    done = run_cmd(*args, "--workers", 1, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert [p.name for p in (tmp_path / "tiny-v2/isomap").iterdir()] == ["grid6"]
+    wrong = run_cmd(*args[:-4], "--task", "nope", "--out", tmp_path)
+    assert wrong.returncode != 0 and "suite tiny-v2 has no task 'nope'" in wrong.stderr
+
+
 def test_a_bench_of_an_unknown_entry_writes_nothing(tmp_path):
     done = run_cmd("smtrain", "bench", "tiny", "nonesuch", "--lake", tmp_path / "lake", "--out", tmp_path / "out")
     assert done.returncode != 0 and "unknown model 'nonesuch'" in done.stderr
