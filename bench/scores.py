@@ -1,7 +1,7 @@
 """An entry's scores on a task, run by run (one world and mode each): the paper's D_topo and
 D_metric, the held-out linear probe of p from h (metrics/probe.py) and the local-PCA dimension of h
-(metrics/dimension.py: TwoNN diverges on a lattice such as the grid's sampling), all on the regular
-sampling, and the wall time the run took."""
+over the positions (metrics/dimension.py: TwoNN diverges on a lattice such as the grid's sampling),
+all on the regular sampling, and the wall time the run took."""
 
 from __future__ import annotations
 
@@ -26,10 +26,22 @@ def scores_of(h: np.ndarray, p: np.ndarray, seed: int) -> dict[str, float]:
 
 def beyond_the_paper(h: np.ndarray, p: np.ndarray, seed: int) -> dict[str, float]:
     try:
-        dimension = local_pca_dimension(h)
+        dimension = local_pca_dimension(mean_per_position(h, p))
     except ValueError:  # fewer than 3 distinct points: h collapsed
         dimension = math.nan
     return {"probe_r2": probe_r2(h, p, seed=seed), "local_dim": dimension}
+
+
+def mean_per_position(h: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """h averaged over the states that share a position: the surface h traces as the sensor
+    moves. Redundant motors put many states at one position (5 in the grid, 625 in grid6): their
+    h, close but not equal, would make every neighbourhood a cluster and the dimension that of
+    its spread (how far h is from a function of p is D_topo's to say)."""
+    _, group = np.unique(np.asarray(p), axis=0, return_inverse=True)
+    group = group.ravel()
+    sums = np.zeros((group.max() + 1, h.shape[1]))
+    np.add.at(sums, group, np.asarray(h, np.float64))
+    return sums / np.bincount(group)[:, None]
 
 
 def world_and_mode(dataset_id: str) -> tuple[int, str]:

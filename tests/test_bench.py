@@ -218,3 +218,16 @@ def test_an_entrys_parameters_reach_its_study_and_name_its_folder():
             parse_entry(bad)
     with pytest.raises(SmspaceError, match="learns nothing"):
         parse_entry("isomap:k=3").check()
+
+
+def test_the_dimension_is_of_h_over_positions_not_of_its_clusters():
+    """Five motor states per grid position: an h that is a noisy affine image of p has clusters of
+    five, which local PCA alone reads as 1.6 dimensions; over the positions it is the plane's 2."""
+    from smspace.bench.scores import beyond_the_paper, mean_per_position
+    from smspace.metrics.dimension import local_pca_dimension
+
+    _, p = Dataset.open(SAMPLES / "grid-seed0-MM").regular_sampling()
+    rng = np.random.default_rng(0)
+    h = np.c_[p, np.zeros(len(p))] @ rng.normal(size=(3, 3)) + 0.01 * rng.normal(size=(len(p), 3))
+    assert len(mean_per_position(h, p)) == len(np.unique(p, axis=0)) == 25
+    assert local_pca_dimension(h) < 1.8 and beyond_the_paper(h, p, seed=0)["local_dim"] == 2.0
