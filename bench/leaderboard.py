@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +64,8 @@ def find_results(paths: list[str | Path], left_out: list[str] | None = None) -> 
                 if left_out is not None:
                     left_out.append(folder.url)
                 continue
-            found.append(_read(folder))
+            where = "/".join([str(path).rstrip("/"), *name.split("/")[:-1]])  # as given: a leaderboard moves
+            found.append(replace(_read(folder), where=where))
     return found
 
 
