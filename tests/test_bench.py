@@ -231,3 +231,17 @@ def test_the_dimension_is_of_h_over_positions_not_of_its_clusters():
     h = np.c_[p, np.zeros(len(p))] @ rng.normal(size=(3, 3)) + 0.01 * rng.normal(size=(len(p), 3))
     assert len(mean_per_position(h, p)) == len(np.unique(p, axis=0)) == 25
     assert local_pca_dimension(h) < 1.8 and beyond_the_paper(h, p, seed=0)["local_dim"] == 2.0
+
+
+def test_a_baseline_with_its_own_objective_trains_on_two_ranks(tmp_path):
+    """DDP averages gradients only through the module it wraps: the objective goes through it
+    (train/model.py, Method), or rank 1's weights would drift from rank 0's, which every
+    evaluation compares (a mismatch stops the run)."""
+    out = tmp_path / "run"
+    args = ["smtrain", "fit", SAMPLES / "grid-seed0-MME", "--model", "motor-autoencoder", "--nproc", 2]
+    done = run_cmd(*args, "--steps", 60, "--eval-every", 30, "--out", out, timeout=300)
+    assert done.returncode == 0, done.stderr
+    run = RunDir.open(out)
+    rows = run.metrics()
+    assert run.status()["state"] == "finished" and run.config.world_size == 2
+    assert rows[-1]["train_loss"] < rows[1]["train_loss"], rows
