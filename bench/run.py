@@ -106,6 +106,7 @@ def run_bench(
     done = []
     for task in suite.tasks:  # task by task: a leaderboard fills a column at a time
         _generate(task, lake, gen_workers, executor, notify)  # before any entry: no entry's time includes it
+        _check_lake(lake, suite, task)
         for entry in entries:
             folder = out.child(suite.label).child(entry.folder).child(task.name)
             notify(f"bench: {suite.label} {entry.folder} on {task.name}")
@@ -115,7 +116,6 @@ def run_bench(
                 rows = _train(task, entry, lake, folder, workers, gen_workers, executor, overwrite, notify)
             else:
                 rows = _represent(task, entry, lake)
-            _check_lake(lake, suite, task)
             folder.put(SCORES, (json.dumps(rows, indent=1) + "\n").encode())
             _end(folder, session, time.monotonic() - clock)
             done.append(folder)
