@@ -163,7 +163,14 @@ def markdown(table: list[dict[str, Any]], results: list[Result], head: dict[str,
     cols, rows = columns(table), entries(table)
     versions = ", ".join(f"v{v}" for v in head["versions"])
     lines = [f"# smspace-bench: {head['suite']} ({versions})", "",
-             f"{len(results)} result(s); each cell: mean ± standard deviation over worlds.", ""]  # fmt: skip
+             f"{len(results)} result(s); each cell: mean ± standard deviation over worlds.", "",
+             _row("task", ["setup", "modes", "worlds", "transitions", "steps"]), "|---|" + "---|" * 5]  # fmt: skip
+    suite = get_suite(f"{head['suite']}@{max(head['versions'])}")
+    for name in sorted({t for t, _ in cols}):
+        task = suite.task(name)
+        lines.append(_row(name, [task.setup, ", ".join(task.modes), str(task.worlds), str(task.transitions),
+                                 str(task.steps)]))  # fmt: skip
+    lines.append("")
     for score in SCORE_NAMES:
         lines += [f"## {TITLES[score]}", "", _row("entry", [f"{t} {m}" for t, m in cols]), "|---|" + "---|" * len(cols)]
         lines += [_row(e, [_shown(_cell(table, e, t, m, score)) for t, m in cols]) for e in rows]
