@@ -158,6 +158,12 @@ def test_the_leaderboard_refuses_what_would_not_compare(tiny_bench, tmp_path):
     edited.write_text(json.dumps(record))
     bad = run_cmd("smtrain", "leaderboard", copy, "--out", tmp_path / "b")
     assert bad.returncode != 0 and "another protocol" in bad.stderr and "(steps differ)" in bad.stderr
+    record["task"]["steps"] = 60  # back to the suite's: a session that never ended shows as "≥"
+    record["sessions"].append(record["sessions"][0] | {"wall_s": None})
+    edited.write_text(json.dumps(record))
+    interrupted = run_cmd("smtrain", "leaderboard", copy, "--out", tmp_path / "b")
+    assert interrupted.returncode == 0, interrupted.stderr
+    assert "| shallow | ≥ " in (tmp_path / "b/leaderboard.md").read_text()
     (copy / "tiny-v1/shallow/grid/scores.json").unlink()
     partial = run_cmd("smtrain", "leaderboard", copy, "--out", tmp_path / "b")
     assert partial.returncode == 0 and "is left out" in partial.stderr
