@@ -46,11 +46,12 @@ def parse_entry(spec: str):
 @executor_option("ensembles train")
 @click.option("--overwrite", is_flag=True, help="Replace results in --out made with another config.")
 @click.option("--task", "tasks", multiple=True, help="Only this task of the suite (repeatable) [default: all].")
+@click.option("--dry-run", is_flag=True, help="Print what would be generated, trained and how long; write nothing.")
 @friendly_errors
-def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite, tasks) -> None:
+def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite, tasks, dry_run) -> None:
     """Run ENTRIES (models, NAME:key=value for their parameters, or `isomap`) on every task of
     SUITE (NAME or NAME@VERSION: spatial, tiny); resumable: the same command continues."""
-    from smspace.bench.run import run_bench
+    from smspace.bench.run import plan_bench, run_bench
     from smspace.bench.suite import get_suite
 
     chosen = get_suite(suite)
@@ -58,6 +59,10 @@ def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite, 
         chosen = replace(chosen, tasks=tuple(chosen.task(name) for name in dict.fromkeys(tasks)))
     parsed = [parse_entry(e) for e in entries]
     workers = workers or default_workers()
+    if dry_run:
+        for line in plan_bench(chosen, parsed, lake, out, workers, overwrite):
+            click.echo(line)
+        return
     message = f"interrupted; the results in {out} keep their last checkpoints: the same command resumes them"
     with on_interrupt(message):
         folders = run_bench(

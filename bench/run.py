@@ -24,6 +24,7 @@ from smspace.bench.scores import run_scores, scores_of
 from smspace.bench.suite import Suite, Task, datasets_hash
 from smspace.common.cli import default_workers
 from smspace.common.errors import SmspaceError
+from smspace.common.progress import duration
 from smspace.common.provenance import cpu, git_commit, version
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import dataset_id
@@ -120,6 +121,40 @@ def run_bench(
             _end(folder, session, time.monotonic() - clock)
             done.append(folder)
     return done
+
+
+def plan_bench(
+    suite: Suite, entries: list[Entry], lake: Store | str, out: Store | str, workers: int = 1, overwrite: bool = False
+) -> list[str]:
+    """What `run_bench` would generate, train and take, as each task's study budgets it (measured
+    here and now, study/budget.py), and the whole bench's time. Writes nothing."""
+    from smspace.study.file import load_study
+    from smspace.study.runner import plan_study
+
+    for entry in entries:
+        entry.check()
+    for task in suite.tasks:
+        check_task(suite, task)
+    lake, out = open_store(lake), open_store(out)
+    lines, total_s = [], 0.0
+    for task in suite.tasks:
+        generate_s = 0.0  # the task's datasets are generated once, whichever entry comes first
+        for entry in entries:
+            folder = out.child(suite.label).child(entry.folder).child(task.name)
+            lines.append(f"{suite.label} {entry.folder} on {task.name}:")
+            if not entry.learns:
+                lines.append(f"  learns nothing: {task.worlds * len(task.modes)} representations of the regular states")
+                continue
+            with tempfile.TemporaryDirectory(prefix="smspace-bench-") as tmp:
+                path = Path(tmp) / f"{task.name}.toml"
+                path.write_text(study_toml(task, entry))
+                plan = plan_study(load_study(path), f"task {task.name}", lake, folder, workers, overwrite)
+            lines += [f"  {line}" for line in plan.lines[:-1]]  # the last: "nothing was written", said once below
+            generate_s, total_s = max(generate_s, plan.generate_s), total_s + plan.train_s
+        total_s += generate_s
+    lines.append(f"bench: about {duration(total_s)} on {workers} worker(s), at the rates measured now")
+    lines.append("dry run: nothing was written")
+    return lines
 
 
 def _check_lake(lake: Store, suite: Suite, task: Task) -> None:

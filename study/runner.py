@@ -198,10 +198,25 @@ def dry_run(
     return plan_lines(study, str(path), lake, out if out is not None else f"{RUNS}/{study.name}", workers, overwrite)
 
 
+@dataclass(frozen=True)
+class Plan:
+    """A study's dry run: its lines, and the seconds they budget (a benchmark adds them up)."""
+
+    lines: list[str]
+    generate_s: float
+    train_s: float  # starting processes included
+
+
 def plan_lines(
     study: StudyFile, path: str, lake: Store, out: Store | str, workers: int | None = None, overwrite: bool = False
 ) -> list[str]:
     """A dry run of a study, whether it came from a file or from a sweep's flags (`path` says which)."""
+    return plan_study(study, path, lake, out, workers, overwrite).lines
+
+
+def plan_study(
+    study: StudyFile, path: str, lake: Store, out: Store | str, workers: int | None = None, overwrite: bool = False
+) -> Plan:
     out = open_store(out)
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = study.run.get("gen_workers", workers)
@@ -292,7 +307,7 @@ def plan_lines(
         f"training on {workers} worker(s), {duration(spawn_s)} starting)"
     )
     lines.append("dry run: nothing was written")
-    return lines
+    return Plan(lines, gen_s, spawn_s + total_s)
 
 
 def _refuse_what_the_lake_cannot_hold(lake: Store, study: StudyFile, combos: list[Combination]) -> None:

@@ -181,6 +181,22 @@ def test_a_bench_of_one_task_runs_only_it(tiny_bench, tmp_path):
     assert wrong.returncode != 0 and "suite tiny-v2 has no task 'nope'" in wrong.stderr
 
 
+def test_a_bench_dry_run_budgets_every_entry_on_every_task_and_writes_nothing(tiny_bench, tmp_path):
+    _, args = tiny_bench
+    fresh = run_cmd("smtrain", "bench", "tiny@2", "shallow", "isomap", "--dry-run", "--lake", tmp_path / "lake",
+                    "--out", tmp_path / "out", "--workers", 1, timeout=600)  # fmt: skip
+    assert fresh.returncode == 0, fresh.stderr
+    lines = fresh.stdout.splitlines()
+    assert [line for line in lines if not line.startswith(" ")][:-2] == [
+        f"tiny-v2 {entry} on {task}:" for task in ("grid", "grid6") for entry in ("shallow", "isomap")
+    ]
+    assert "  runs: 4 new, 0 to resume, 0 finished" in lines and "  runs: 1 new, 0 to resume, 0 finished" in lines
+    assert lines[-2].startswith("bench: about ") and lines[-1] == "dry run: nothing was written"
+    assert list(tmp_path.iterdir()) == []
+    done = run_cmd(*args, "--dry-run", "--workers", 1, timeout=600)  # the tiny bench ran: nothing left to train
+    assert done.returncode == 0 and "  runs: 0 new, 0 to resume, 4 finished" in done.stdout, done.stderr
+
+
 def test_a_bench_of_an_unknown_entry_writes_nothing(tmp_path):
     done = run_cmd("smtrain", "bench", "tiny", "nonesuch", "--lake", tmp_path / "lake", "--out", tmp_path / "out")
     assert done.returncode != 0 and "unknown model 'nonesuch'" in done.stderr
