@@ -124,7 +124,13 @@ def cells(results: list[Result]) -> list[dict[str, Any]]:
 
 
 def columns(table: list[dict[str, Any]]) -> list[tuple[str, str]]:
-    return sorted({(c["task"], c["mode"]) for c in table})
+    """(task, mode) in the suite's order of tasks and each task's order of modes: a suite's later
+    versions only add tasks, so its latest version orders them all."""
+    if not table:
+        return []
+    suite = get_suite(f"{table[0]['suite']}@{max(c['version'] for c in table)}")
+    order = [(task.name, mode) for task in suite.tasks for mode in task.modes]
+    return sorted({(c["task"], c["mode"]) for c in table}, key=order.index)
 
 
 def entries(table: list[dict[str, Any]]) -> list[str]:
@@ -166,7 +172,7 @@ def markdown(table: list[dict[str, Any]], results: list[Result], head: dict[str,
              f"{len(results)} result(s); each cell: mean ± standard deviation over worlds.", "",
              _row("task", ["setup", "modes", "worlds", "transitions", "steps"]), "|---|" + "---|" * 5]  # fmt: skip
     suite = get_suite(f"{head['suite']}@{max(head['versions'])}")
-    for name in sorted({t for t, _ in cols}):
+    for name in dict.fromkeys(t for t, _ in cols):
         task = suite.task(name)
         lines.append(_row(name, [task.setup, ", ".join(task.modes), str(task.worlds), str(task.transitions),
                                  str(task.steps)]))  # fmt: skip
@@ -175,7 +181,7 @@ def markdown(table: list[dict[str, Any]], results: list[Result], head: dict[str,
         lines += [f"## {TITLES[score]}", "", _row("entry", [f"{t} {m}" for t, m in cols]), "|---|" + "---|" * len(cols)]
         lines += [_row(e, [_shown(_cell(table, e, t, m, score)) for t, m in cols]) for e in rows]
         lines.append("")
-    tasks = sorted({t for t, _ in cols})
+    tasks = list(dict.fromkeys(t for t, _ in cols))
     lines += ["## Wall time (s, all sessions)", "", _row("entry", tasks), "|---|" + "---|" * len(tasks)]
     walls = {(r.entry, r.task): r for r in results}
     lines += [_row(e, [_wall(walls.get((e, t))) for t in tasks]) for e in rows]

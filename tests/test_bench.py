@@ -267,3 +267,13 @@ def test_a_baseline_with_its_own_objective_trains_on_two_ranks(tmp_path):
     rows = run.metrics()
     assert run.status()["state"] == "finished" and run.config.world_size == 2
     assert rows[-1]["train_loss"] < rows[1]["train_loss"], rows
+
+
+def test_the_leaderboards_columns_follow_the_suites_order_of_tasks():
+    from smspace.bench.leaderboard import columns
+
+    cell = {"suite": "spatial", "version": 2}
+    given = [("floor24", "MM"), ("grid", "MME"), ("arm", "MEM"), ("grid", "MEM"), ("floor2", "MME"), ("grid6", "MM")]
+    table = [cell | {"task": task, "mode": mode} for task, mode in given]
+    expected = [("grid", "MEM"), ("grid", "MME"), ("grid6", "MM"), ("arm", "MEM"), ("floor2", "MME"), ("floor24", "MM")]
+    assert columns(table) == expected
