@@ -104,12 +104,13 @@ def run_bench(
     for task in suite.tasks:
         check_task(suite, task)
     lake, out = open_store(lake), open_store(out)
+    _check_earlier(suite, entries, out, overwrite)
     done = []
     for task in suite.tasks:  # task by task: a leaderboard fills a column at a time
         _generate(task, lake, gen_workers, executor, notify)  # before any entry: no entry's time includes it
         _check_lake(lake, suite, task)
         for entry in entries:
-            folder = out.child(suite.label).child(entry.folder).child(task.name)
+            folder = _folder(out, suite, task, entry)
             notify(f"bench: {suite.label} {entry.folder} on {task.name}")
             session = _begin(folder, suite, task, entry, workers, executor, overwrite)
             clock = time.monotonic()
@@ -136,11 +137,12 @@ def plan_bench(
     for task in suite.tasks:
         check_task(suite, task)
     lake, out = open_store(lake), open_store(out)
+    _check_earlier(suite, entries, out, overwrite)
     lines, total_s = [], 0.0
     for task in suite.tasks:
         generate_s = 0.0  # the task's datasets are generated once, whichever entry comes first
         for entry in entries:
-            folder = out.child(suite.label).child(entry.folder).child(task.name)
+            folder = _folder(out, suite, task, entry)
             lines.append(f"{suite.label} {entry.folder} on {task.name}:")
             if not entry.learns:
                 lines.append(f"  learns nothing: {task.worlds * len(task.modes)} representations of the regular states")
@@ -155,6 +157,10 @@ def plan_bench(
     lines.append(f"bench: about {duration(total_s)} on {workers} worker(s), at the rates measured now")
     lines.append("dry run: nothing was written")
     return lines
+
+
+def _folder(out: Store, suite: Suite, task: Task, entry: Entry) -> Store:
+    return out.child(suite.label).child(entry.folder).child(task.name)
 
 
 def _check_lake(lake: Store, suite: Suite, task: Task) -> None:
@@ -237,24 +243,47 @@ def _toml_table(params: dict[str, Any]) -> str:
     return "{" + ", ".join(f"{json.dumps(k)} = {json.dumps(v)}" for k, v in params.items()) + "}"
 
 
+def _check_earlier(suite: Suite, entries: list[Entry], out: Store, overwrite: bool) -> None:
+    """Every earlier result checked before anything is generated or trained."""
+    for task in suite.tasks:
+        for entry in entries:
+            _earlier(_folder(out, suite, task, entry), _terms(suite, task, entry), overwrite)
+
+
+def _terms(suite: Suite, task: Task, entry: Entry) -> dict[str, Any]:
+    return {"suite": suite.name, "version": suite.version, "task": task.protocol(), "entry": entry.record(),
+            "datasets": task.datasets()}  # fmt: skip
+
+
+def _earlier(folder: Store, terms: dict[str, Any], overwrite: bool) -> dict[str, Any] | None:
+    """The result already in `folder` (None: none, or --overwrite), refused if it was made on other
+    terms (another entry's code, another protocol): its sessions would not describe this result."""
+    if overwrite or not folder.exists(BENCH):
+        return None
+    try:
+        before = json.loads(folder.read_bytes(BENCH))
+    except ValueError as e:
+        raise SmspaceError(f"{folder.url}/{BENCH} is not readable JSON ({e}); --overwrite replaces it") from None
+    changed = [key for key, value in terms.items() if before.get(key) != value]
+    if changed:
+        raise SmspaceError(
+            f"{folder.url} holds a result made with another {', '.join(changed)}; "
+            "--overwrite replaces it, or give another --out"
+        )
+    return before
+
+
 def _begin(folder: Store, suite: Suite, task: Task, entry: Entry, workers: int, executor: str, overwrite: bool) -> int:
     """bench.json with this session in it, its wall time unknown until it ends (a session that
     was interrupted or failed stays so: the leaderboard says the time is incomplete). Returns the
     session's index."""
-    sessions = []
-    if folder.exists(BENCH) and not overwrite:
-        sessions = json.loads(folder.read_bytes(BENCH)).get("sessions", [])
+    terms = _terms(suite, task, entry)
+    before = _earlier(folder, terms, overwrite)
+    sessions = before.get("sessions", []) if before else []
     session = {"started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "wall_s": None,
                "workers": workers, "executor": executor, "smspace": version("smspace"), "git_commit": git_commit(),
                "host": socket.gethostname(), "cores": default_workers(), **cpu()}  # fmt: skip
-    record = {
-        "suite": suite.name,
-        "version": suite.version,
-        "task": task.protocol(),
-        "entry": entry.record(),
-        "datasets": task.datasets(),
-        "sessions": [*sessions, session],
-    }
+    record = terms | {"sessions": [*sessions, session]}
     folder.make()
     folder.put(BENCH, (json.dumps(record, indent=1) + "\n").encode())
     return len(sessions)

@@ -171,6 +171,25 @@ def test_the_leaderboard_refuses_what_would_not_compare(tiny_bench, tmp_path):
     assert {c["entry"] for c in cells} == {"isomap"}
 
 
+def test_a_result_made_on_other_terms_is_refused_before_anything_runs(tiny_bench, tmp_path):
+    root, args = tiny_bench
+    copy = tmp_path / "out"
+    shutil.copytree(root / "out", copy)
+    edited = copy / "tiny-v1/isomap/grid/bench.json"  # the second entry: refused before the first resumes
+    record = json.loads(edited.read_text())
+    record["entry"]["params"] = {"neighbours": 5}
+    edited.write_text(json.dumps(record))
+    before = {p: p.read_bytes() for p in copy.rglob("*") if p.is_file()}
+    for extra in ([], ["--dry-run"]):
+        again = run_cmd(*args[:-1], copy, *extra, "--workers", 1, timeout=600)
+        assert again.returncode != 0 and len(again.stderr.strip().splitlines()) == 1, again.stderr
+        assert "tiny-v1/isomap/grid holds a result made with another entry" in again.stderr
+        assert {p: p.read_bytes() for p in copy.rglob("*") if p.is_file()} == before
+    edited.write_text("{not json")
+    corrupt = run_cmd(*args[:-1], copy, "--workers", 1, timeout=600)
+    assert corrupt.returncode != 0 and "bench.json is not readable JSON" in corrupt.stderr
+
+
 def test_a_bench_of_one_task_runs_only_it(tiny_bench, tmp_path):
     root, _ = tiny_bench
     args = ["smtrain", "bench", "tiny@2", "isomap", "--task", "grid6", "--lake", root / "lake", "--out", tmp_path]
