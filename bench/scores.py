@@ -5,14 +5,15 @@ all on the regular sampling, and the wall time the run took."""
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
+from smspace.common.errors import SmspaceError
 from smspace.metrics import spatial_scores
 from smspace.metrics.dimension import local_pca_dimension
 from smspace.metrics.probe import probe_r2
+from smspace.metrics.spatial import DegenerateRepresentation, check_representation
 from smspace.train.run_dir import RunView
 
 SCORES = ("d_topo", "d_metric", "probe_r2", "local_dim")
@@ -20,15 +21,18 @@ LOWER_IS_BETTER = {"d_topo": True, "d_metric": True, "probe_r2": False, "local_d
 
 
 def scores_of(h: np.ndarray, p: np.ndarray, seed: int) -> dict[str, float]:
+    """Every score of an h of the regular states; `seed`: the world's (the probe's folds). A
+    degenerate h (non-finite, collapsed) is refused, never scored."""
     spatial = spatial_scores(h, p)
     return {"d_topo": spatial.d_topo, "d_metric": spatial.d_metric, **beyond_the_paper(h, p, seed)}
 
 
 def beyond_the_paper(h: np.ndarray, p: np.ndarray, seed: int) -> dict[str, float]:
+    check_representation(h)
     try:
         dimension = local_pca_dimension(mean_per_position(h, p))
-    except ValueError:  # fewer than 3 distinct points: h collapsed
-        dimension = math.nan
+    except ValueError as e:  # h averaged per position collapsed to fewer than 3 points
+        raise DegenerateRepresentation(f"h averaged over each position collapsed ({e})") from None
     return {"probe_r2": probe_r2(h, p, seed=seed), "local_dim": dimension}
 
 
@@ -50,12 +54,13 @@ def world_and_mode(dataset_id: str) -> tuple[int, str]:
     return int(head.rsplit("-seed", 1)[1]), mode
 
 
-def run_scores(run: RunView) -> dict[str, Any]:
-    """Scores at the run's last evaluation; D_topo and D_metric as training recorded them."""
+def run_scores(run: RunView, steps: int) -> tuple[dict[str, Any], np.ndarray]:
+    """A trained run's row (its world, mode, step and wall time) and the h its scores are computed
+    from: that of its last evaluation, which must be the task's last step."""
     rows = run.metrics()
     last = rows[-1]
-    h, p = run.embeddings(last["step"])
-    cfg = run.config
-    world, mode = world_and_mode(cfg.dataset_id)
-    return {"world": world, "mode": mode, "step": last["step"], "wall_s": last["elapsed_s"], "run": run.name,
-            "d_topo": last["d_topo"], "d_metric": last["d_metric"], **beyond_the_paper(h, p, cfg.seed)}  # fmt: skip
+    if last["step"] != steps:
+        raise SmspaceError(f"{run.name} ended at step {last['step']}, not the task's {steps}")
+    h, _ = run.embeddings(last["step"])
+    world, mode = world_and_mode(run.config.dataset_id)
+    return {"world": world, "mode": mode, "step": last["step"], "wall_s": last["elapsed_s"], "run": run.name}, h

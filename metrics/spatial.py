@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from smspace.common.errors import SmspaceError
+
 ALPHA = 50.0
 BLOCK_ELEMENTS = 1 << 21  # pair terms per block: 8 MB per float32 temporary
 
@@ -24,6 +26,30 @@ class SpatialScores:
 
 
 RANK_TOLERANCE = 1e-5  # h comes from float32 networks: a direction thinner than this is rounding
+
+
+MIN_DISTINCT = 3  # distinct h a score needs: local dimension fits neighbourhoods, D_topo a spread
+
+
+class DegenerateRepresentation(SmspaceError):
+    """An h no score may be computed from: non-finite, or collapsed (a constant h would score the
+    best D_topo there is, 0)."""
+
+
+def check_representation(h: np.ndarray, what: str = "h") -> None:
+    """Refuse an h that is not finite or has fewer than MIN_DISTINCT distinct rows (constant: zero
+    spread, the pair distances D_topo divides by all zero)."""
+    h = np.asarray(h)
+    if h.ndim != 2 or len(h) == 0:
+        raise DegenerateRepresentation(f"{what} has shape {h.shape}, not (states, N_h)")
+    bad = int(np.count_nonzero(~np.isfinite(h)))
+    if bad:
+        raise DegenerateRepresentation(f"{what} holds {bad} non-finite value(s) (NaN or inf)")
+    distinct = len(np.unique(h, axis=0))
+    if distinct < MIN_DISTINCT:
+        raise DegenerateRepresentation(
+            f"{what} collapsed: {distinct} distinct value(s) over {len(h)} states (at least {MIN_DISTINCT} needed)"
+        )
 
 
 def affine_projection(h: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -74,16 +100,17 @@ def _max_distance(x: np.ndarray) -> float:
 
 
 def spatial_scores(h: np.ndarray, p: np.ndarray, alpha: float = ALPHA) -> SpatialScores:
-    """Both metrics in one pass over the pairs."""
+    """Both metrics in one pass over the pairs; a degenerate h is refused (check_representation)."""
     h = np.asarray(h, np.float64)
     p = np.asarray(p, np.float64)
     n = len(h)
     if n < 2 or len(p) != n:
         raise ValueError(f"need at least two samples with one position each (got {n} h, {len(p)} p)")
-    h_hat = affine_projection(h, p)
     max_p = _max_distance(p)
     if max_p == 0:
         raise ValueError("all positions coincide: the metrics are undefined")
+    check_representation(h)
+    h_hat = affine_projection(h, p)
     max_h = 0.0
     topo_sum = metric_sum = 0.0
     for a, b in _blocks(n):
@@ -96,5 +123,6 @@ def spatial_scores(h: np.ndarray, p: np.ndarray, alpha: float = ALPHA) -> Spatia
         topo_sum += _pair_sum(dh * weight, square)
         metric_sum += _pair_sum(np.abs(dhh - dp), square)
     pairs = n * (n - 1) / 2
-    d_topo_value = topo_sum / (max_h * pairs) if max_h > 0 else 0.0
-    return SpatialScores(d_topo=d_topo_value, d_metric=metric_sum / (max_p * pairs))
+    if not max_h > 0:  # distinct rows closer than float32 resolves
+        raise DegenerateRepresentation("h collapsed: every pair of states is at distance 0 in float32")
+    return SpatialScores(d_topo=topo_sum / (max_h * pairs), d_metric=metric_sum / (max_p * pairs))
