@@ -219,7 +219,7 @@ def check_study_model(template: TrainConfig, setup: str, seed: int) -> None:
             f"one run of this study needs about {needed / 2**30:.1f} GiB of memory; "
             f"{free / 2**30:.1f} GiB are available"
         )
-    check_model(template, n_motor, n_sensor)
+    check_model(template, n_motor, n_sensor, stacked=True)
 
 
 def prepare(

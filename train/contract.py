@@ -2,7 +2,12 @@
 before a run folder is written: `forward(m_t, s_t, m_t1)` gives exactly (B, N_s) float32 for
 (B, N_s) targets (a (B, 1) output would broadcast in the loss and train silently), `encode(m)`
 exactly (B, N_h), both finite; a model's own `objective(m_t, s_t, m_t1, s_t1)`, where it has one,
-a finite float32 scalar that backpropagates. Broken, it is one line naming the model and what it gave.
+a finite float32 scalar that backpropagates. Sweeps and `smtrain bench` train runs stacked (vmap,
+train/ensemble.py), so the probe also runs two stacked copies: what cannot run there (random ops
+such as torch.randn or dropout, `.item()`, data-dependent control flow) is refused here, not 90
+lines into a bench. The probe's batch sizes are not the only ones checked: the engine holds the
+real batches to the same shapes once per session and at every evaluation (`check_outputs`).
+Broken, it is one line naming the model and what it gave.
 """
 
 from __future__ import annotations
@@ -22,9 +27,10 @@ def probe_batch_size(*sizes: int) -> int:
     return next(b for b in (7, 11, 13, 17, 19, 23) if b not in sizes)
 
 
-def check_model(cfg: TrainConfig, n_motor: int, n_sensor: int) -> None:
-    """Build the config's model and run it once, forward and backward, on a probe batch: one line
-    if it breaks the contract. Leaves torch's random state as it found it."""
+def check_model(cfg: TrainConfig, n_motor: int, n_sensor: int, stacked: bool = False) -> None:
+    """Build the config's model and run it once, forward and backward, on a probe batch (and, for
+    runs that will train `stacked`, as two stacked copies): one line if it breaks the contract.
+    Leaves torch's random state as it found it."""
     name, n_h = cfg.model, cfg.n_h
     plugin, label = model_plugin(name), model_label(name)
     batch = probe_batch_size(n_motor, n_sensor, n_h)
@@ -55,6 +61,49 @@ def check_model(cfg: TrainConfig, n_motor: int, n_sensor: int) -> None:
             raise SmspaceError(f"{label}: its training loss does not depend on any trainable parameter")
         with plugins.guarded(plugin, "in backward() on a probe batch"):
             loss.backward()
+        if stacked:
+            _check_stacked(model, label, (m_t, s_t, m_t1, torch.rand(batch, n_sensor, generator=generator)))
+
+
+def _check_stacked(model: torch.nn.Module, label: str, batch: tuple[torch.Tensor, ...]) -> None:
+    """Two copies of the model stacked as an ensemble stacks them, one step forward and back."""
+    import copy
+
+    from smspace.train.ensemble import Stacked
+
+    stacked = Stacked([model, copy.deepcopy(model)])
+    two = [torch.stack([x, x]) for x in batch]
+    try:
+        loss = stacked.objective(*two) if has_objective(model) else prediction_loss(stacked.forward(*two[:3]), two[3])
+        loss.sum().backward()
+    except Exception as e:  # whatever vmap refuses: one line, as raised
+        raise SmspaceError(
+            f"{label} cannot be trained stacked (sweeps and `smtrain bench` train runs together with "
+            f"torch.func.vmap, which has no random ops, .item() or branches on values): "
+            f"{type(e).__name__}: {_first_line(e)}"
+        ) from None
+
+
+def _first_line(e: BaseException) -> str:
+    lines = [line for line in str(e).splitlines() if line.strip()]
+    return lines[0][:300] if lines else type(e).__name__
+
+
+def check_outputs(
+    label: str, loss: torch.Tensor, pred: torch.Tensor | None, target: torch.Tensor, stacked: bool
+) -> None:
+    """The shapes of a real training step: its loss one scalar per run, its prediction exactly the
+    target's shape (a (B, 1) prediction would broadcast). Called on the batches really trained on,
+    once per session and at every evaluation: a model may behave at batch sizes the probe never tried."""
+    runs = 1 if stacked else 0  # a stacked ensemble's outputs lead with the run axis: shapes are per run
+    if tuple(loss.shape[runs:]) != () or (stacked and loss.ndim != 1):
+        raise SmspaceError(f"{label}: its training loss has shape {tuple(loss.shape[runs:])} on a batch of "
+                           f"{target.shape[-2]}; it must be a scalar (the batch's mean)")  # fmt: skip
+    if pred is not None and tuple(pred.shape) != tuple(target.shape):
+        raise SmspaceError(
+            f"{label}: forward(m_t, s_t, m_t1) gave shape {tuple(pred.shape[runs:])} on a batch of "
+            f"{target.shape[-2]}; it must give exactly {tuple(target.shape[runs:])} (no broadcasting)"
+        )
 
 
 def _expect(label: str, call: str, out: Any, shape: tuple[int, ...], batch: int, spelled: str) -> None:

@@ -13,6 +13,7 @@ Resuming is loading checkpoints the caller read (`resume`).
 from __future__ import annotations
 
 import math
+import random
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -25,10 +26,12 @@ from torch.nn.parallel import DistributedDataParallel
 from smspace.common.errors import SmspaceError
 from smspace.common.progress import Progress
 from smspace.metrics import spatial_scores
+from smspace.metrics.spatial import DegenerateRepresentation, check_representation
 from smspace.train.config import TrainConfig
+from smspace.train.contract import check_outputs
 from smspace.train.distributed import SINGLE, Ranks, mean_over_ranks, ranks_agree
 from smspace.train.ensemble import Stacked, adam_state_of_run, load_adam_state
-from smspace.train.model import Method, build_model, has_objective, prediction_loss
+from smspace.train.model import Method, build_model, has_objective, model_label, prediction_loss
 from smspace.train.precision import autocast, compiled
 from smspace.train.worker_batches import worker_batches
 
@@ -58,8 +61,12 @@ def adam(parameters: Iterable[torch.Tensor], lr: float) -> torch.optim.Adam:
 
 def build(cfg: TrainConfig, n_motor: int, n_sensor: int, device: torch.device):
     """The run's initial weights (drawn from its seed) and its optimiser: a run stacked in an
-    ensemble starts from the very weights its lone `fit` draws."""
+    ensemble starts from the very weights its lone `fit` draws. numpy's and Python's global
+    generators are seeded too, so that a model drawing from them (np.random, random) gives the same
+    bytes for the same command and seed; an ensemble's runs share them, in the order they are built."""
     torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed % 2**32)
+    random.seed(cfg.seed)
     model = network(cfg, n_motor, n_sensor).to(device)
     return model, adam(model.parameters(), cfg.lr_start)
 
@@ -178,6 +185,10 @@ class Learner(Protocol):
         """One optimiser step on batch r for run r; returns the (R,) losses, detached."""
         ...
 
+    def check_batch(self, batches: Sequence[tuple[torch.Tensor, ...]], label: str) -> None:
+        """The shapes the model gives on these real batches (train/contract.py, check_outputs)."""
+        ...
+
     def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
         """Per run: loss on its evaluation set, h of its regular sampling, its first predictions."""
         ...
@@ -240,6 +251,14 @@ class SingleLearner:
         return loss.detach().reshape(1)
 
     @torch.no_grad()
+    def check_batch(self, batches: Sequence[tuple[torch.Tensor, ...]], label: str) -> None:
+        device = self.data.m_regular.device
+        m_t, s_t, m_t1, s_t1 = (x.to(device) for x in batches[0])
+        pred = self.model(m_t, s_t, m_t1)
+        loss = self.model.objective(m_t, s_t, m_t1, s_t1) if has_objective(self.model) else prediction_loss(pred, s_t1)
+        check_outputs(label, loss, pred, s_t1, stacked=False)
+
+    @torch.no_grad()
     def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
         d = self.data
         h = self.model.encode(d.m_regular).double().cpu().numpy()
@@ -287,6 +306,14 @@ class EnsembleLearner:
         per_run.sum().backward()  # parameters are disjoint: each run gets exactly its own gradient
         self.optimizer.step()
         return per_run.detach()
+
+    @torch.no_grad()
+    def check_batch(self, batches: Sequence[tuple[torch.Tensor, ...]], label: str) -> None:
+        m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(self.m_regular.device) for k in range(4))
+        pred = self.stacked.forward(m_t, s_t, m_t1)
+        own = has_objective(self.stacked.model)
+        loss = self.stacked.objective(m_t, s_t, m_t1, s_t1) if own else prediction_loss(pred, s_t1)
+        check_outputs(label, loss, pred, s_t1, stacked=True)
 
     @torch.no_grad()
     def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
@@ -407,6 +434,13 @@ def train(
             return
         losses, hs, preds = learner.evaluate()
         lr = learning_rate(cfg, step)
+        for r, h in enumerate(hs):
+            try:
+                check_representation(h, f"h of {members[r].name.rsplit('/', 1)[-1]} at step {step}")
+            except DegenerateRepresentation as e:
+                last = members[r].rows[-1]["step"] if members[r].rows else None
+                kept = f"the checkpoint of step {last} is kept" if last is not None else "no checkpoint was written"
+                raise TrainingFailed(f"{e}; no score is computed from it: stopped, {kept}") from None
         for r, m in enumerate(members):
             m.elapsed += wall / count
             row = {
@@ -440,12 +474,26 @@ def train(
     bar = Progress(desc, cfg.steps, "step", initial=step, enabled=progress and ranks.primary)
     last_tick = time.monotonic()
     compile_note: dict[str, str] = {}
+    label, first = model_label(cfg.model), True
     try:
         t0 = time.perf_counter()
         while step < cfg.steps:
             learner.set_lr(learning_rate(cfg, step))
             started = time.perf_counter()
-            losses = mean_over_ranks(learner.train_step([_next_batch(b) for b in batches]), ranks)
+            batch = [_next_batch(b) for b in batches]
+            if first or (step + 1) % cfg.eval_every == 0 or step + 1 == cfg.steps:
+                learner.check_batch(batch, label)  # the real batches, not only the contract's probe sizes
+                first = False
+            try:
+                losses = mean_over_ranks(learner.train_step(batch), ranks)
+            except SmspaceError:
+                raise
+            except Exception as e:  # a model's step (a loss detached late, memory): one line
+                last = members[0].rows[-1]["step"] if members[0].rows else 0
+                raise TrainingFailed(
+                    f"{label} failed in training step {step + 1} ({type(e).__name__}: {_first_line(e)}); "
+                    f"stopped, the checkpoint of step {last} is kept"
+                ) from e
             if learner.compile and not compile_note:  # the first step of a session pays for compilation
                 compile_note = {"compiled in": f"{time.perf_counter() - started:.1f} s"}
                 bar.set_postfix(**compile_note)
@@ -485,6 +533,11 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, str]:
     prefix = "" if len(rows) == 1 else "median "
     shown = {"loss": ("eval_loss", ".4g"), "D_topo": ("d_topo", ".3g"), "D_metric": ("d_metric", ".3g")}
     return {prefix + name: format(float(np.median([r[key] for r in rows])), fmt) for name, (key, fmt) in shown.items()}
+
+
+def _first_line(e: BaseException) -> str:
+    lines = [line for line in str(e).splitlines() if line.strip()]
+    return lines[0][:300] if lines else "no message"
 
 
 def _next_batch(batches) -> tuple[torch.Tensor, ...]:

@@ -154,3 +154,54 @@ class DetachedObjectiveNet(SoundNet):
 
     def objective(self, m_t, s_t, m_t1, s_t1):
         return (s_t - s_t1).pow(2).sum(dim=-1).mean()
+
+
+PROBE_SIZES = (7, 11, 13, 17, 19, 23)  # train/contract.py's probe batches: these models behave there only
+
+
+class ConstantHNet(SoundNet):
+    """h is the same for every motor state: a collapsed representation (the best D_topo, 0, if scored)."""
+
+    def encode(self, m):
+        return self.encoder(m) * 0.0 + 1.0
+
+
+class LateNanHNet(SoundNet):
+    """h is NaN on batches larger than the probe's (the regular sampling): finite where checked."""
+
+    def encode(self, m):
+        h = self.encoder(m)
+        return h * float("nan") if len(m) > 64 else h
+
+
+class RandomOpNet(SoundNet):
+    """Noise in its forward: trains alone, cannot run stacked under vmap's default randomness."""
+
+    def forward(self, m_t, s_t, m_t1):
+        return super().forward(m_t, s_t, m_t1) + 0.01 * torch.randn(len(m_t), s_t.shape[1])
+
+
+class ItemNet(SoundNet):
+    """Reads a value out of a tensor (.item()): fine alone, not under vmap."""
+
+    def forward(self, m_t, s_t, m_t1):
+        return super().forward(m_t, s_t, m_t1) * (1.0 + 0.0 * float(m_t.sum().item()))
+
+
+class LateDetachNet(SoundNet):
+    """Its objective is detached from the parameters after a few calls."""
+
+    calls = 0
+
+    def objective(self, m_t, s_t, m_t1, s_t1):
+        LateDetachNet.calls += 1
+        loss = (self(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=-1).mean()
+        return loss.detach() if LateDetachNet.calls > 8 else loss
+
+
+class OddBatchNet(SoundNet):
+    """(B, N_s) at the contract's probe sizes, (B, 1) at any other: would train on a broadcast loss."""
+
+    def forward(self, m_t, s_t, m_t1):
+        out = super().forward(m_t, s_t, m_t1)
+        return out if m_t.shape[-2] in PROBE_SIZES else out[..., :1]
