@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -16,8 +17,12 @@ from smspace.lake.store import Store, is_url, open_store
 from smspace.lake.transitions import Transitions
 
 
-def lake_store(ref: str | Path | Store | None) -> Store:
-    """The lake named by --lake, or the default one."""
+def lake_store(ref: Any) -> Store:
+    """The lake named by --lake, or the default one; the API's Lake objects (smspace.open_lake)
+    are taken wherever a lake is, by the store they hold."""
+    store = getattr(ref, "store", None)
+    if isinstance(store, Store):
+        return store
     return open_store(ref if ref not in (None, "") else default_lake())
 
 

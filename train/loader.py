@@ -32,7 +32,6 @@ from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import Manifest
 from smspace.lake.normalise import normalisers
 from smspace.lake.shards import ShardReader
-from smspace.lake.store import Store
 
 CACHE_BYTES = 64 * 2**20  # a dataset whose normalised columns fit is decoded once per stream
 
@@ -104,12 +103,12 @@ class TransitionStream(IterableDataset):
         window: int = 8,
         rank: int | None = None,
         world_size: int | None = None,
-        lake: str | Path | Store | None = None,
+        lake: Any = None,
     ):
-        """`dataset`: a Dataset, its folder or URL, or an id in `lake` (default: $SMSPACE_LAKE or
-        data/lake). rank/world_size default to torch.distributed's when it is initialised, else 0
-        of 1. They are resolved here, in the rank's own process: DataLoader workers started by
-        spawn have no process group, and resolving there made every rank read the whole dataset."""
+        """`dataset`: a Dataset, its folder or URL, or an id in `lake` (a Lake, a folder, URL or
+        store; default: $SMSPACE_LAKE or data/lake). rank/world_size default to torch.distributed's
+        when it is initialised, else 0 of 1. They are resolved here, in the rank's own process: DataLoader
+        workers started by spawn have no process group, and resolving there made every rank read the whole dataset."""
         super().__init__()
         self.rank, self.world_size = _rank(rank, world_size)
         self.dataset = dataset if isinstance(dataset, Dataset) else Dataset.open(str(dataset), lake)
