@@ -13,31 +13,55 @@ from smspace.common.cli import MAX_WORKERS, default_workers, executor_option, fr
 from smspace.common.errors import SmspaceError
 from smspace.train.cli import main
 
-BENCH_LAKE = "data/bench-lake"  # a task fixes its datasets' sizes: they live apart from one's own lake
+BENCH_LAKE = "data/bench-lake"  # a task fixes its datasets' sizes: each suite's live apart, in BENCH_LAKE/<suite>
 BENCH_OUT = "runs/bench"
 
 
 def parse_entry(spec: str):
-    """NAME, or NAME:key=value,key=value (values in TOML: 0.2, 16, "text", [1, 2])."""
+    """NAME, or NAME:key=value,key=value (values in TOML: 0.2, 16, "text", [1, 2]; a bare word is
+    text), in the entry's canonical form (bench/names.py)."""
     from smspace.bench.run import Entry
 
     name, _, given = spec.partition(":")
     params = {}
-    for pair in filter(None, given.split(",")):
+    for pair in _split_pairs(given, spec):
         key, eq, value = pair.partition("=")
         if not eq or not key.strip():
             raise SmspaceError(f"entry {spec!r}: parameters are NAME:key=value,key=value")
+        if key.strip() in params:
+            raise SmspaceError(f"entry {spec!r}: parameter {key.strip()!r} is given twice")
         try:
-            params[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+            params[key.strip()] = tomllib.loads(f"v = {value.strip()}")["v"]
         except tomllib.TOMLDecodeError:
-            params[key.strip()] = value  # a bare word: a string
-    return Entry(name.strip(), params)
+            params[key.strip()] = value.strip()  # a bare word: text (typed by the model's default, if any)
+    return Entry.of(name, params)
+
+
+def _split_pairs(given: str, spec: str) -> list[str]:
+    """key=value pairs split on the commas outside brackets and quotes: `k=[1, 2],t="a,b"` is two."""
+    pairs, depth, quote, start = [], 0, "", 0
+    for i, c in enumerate(given):
+        if quote:
+            quote = "" if c == quote else quote
+        elif c in "\"'":
+            quote = c
+        elif c in "[{":
+            depth += 1
+        elif c in "]}":
+            depth -= 1
+        elif c == "," and depth == 0:
+            pairs.append(given[start:i])
+            start = i + 1
+    if quote or depth:
+        raise SmspaceError(f"entry {spec!r}: an unclosed quote or bracket")
+    pairs.append(given[start:])
+    return [p for p in pairs if p.strip()]
 
 
 @main.command()
 @click.argument("suite")
 @click.argument("entries", nargs=-1, required=True)
-@click.option("--lake", default=BENCH_LAKE, show_default=True, help="Where the suite's datasets are generated.")
+@click.option("--lake", default=None, help=f"Where the suite's datasets are generated [default: {BENCH_LAKE}/SUITE].")
 @click.option("--out", default=BENCH_OUT, show_default=True, help="Folder (or fsspec URL) for the results.")
 @click.option(
     "--workers", type=click.IntRange(1, MAX_WORKERS), default=None, help="Ensembles trained at once [default: cores]."
@@ -59,8 +83,9 @@ def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite, 
         chosen = replace(chosen, tasks=tuple(chosen.task(name) for name in dict.fromkeys(tasks)))
     parsed = [parse_entry(e) for e in entries]
     workers = workers or default_workers()
+    lake = lake or f"{BENCH_LAKE}/{chosen.name}"  # suites size their datasets apart: never one lake for two
     if dry_run:
-        for line in plan_bench(chosen, parsed, lake, out, workers, overwrite):
+        for line in plan_bench(chosen, parsed, lake, out, workers, overwrite, gen_workers):
             click.echo(line)
         return
     message = f"interrupted; the results in {out} keep their last checkpoints: the same command resumes them"
@@ -83,7 +108,9 @@ def leaderboard(results, out) -> None:
     from smspace.bench.leaderboard import write_leaderboard
 
     left_out: list[str] = []
-    for path in write_leaderboard(list(results), out, left_out):
-        click.echo(path)
-    for where in left_out:
-        click.echo(f"smtrain: note: {where} is left out: its first session has not ended (no scores yet)", err=True)
+    try:
+        for path in write_leaderboard(list(results), out, left_out):
+            click.echo(path)
+    finally:  # what was left out is said, the table written or not
+        for note in left_out:
+            click.echo(f"smtrain: note: {note}", err=True)

@@ -10,19 +10,23 @@ are never pooled.
 
 from __future__ import annotations
 
+import html
+import io
 import json
-import math
+import os
+import stat
+import tempfile
 from collections import defaultdict
-from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
-from smspace.bench.run import BENCH, SCORES
+from smspace.bench.run import BENCH
 from smspace.bench.scores import LOWER_IS_BETTER
 from smspace.bench.scores import SCORES as SCORE_NAMES
 from smspace.bench.suite import get_suite
+from smspace.bench.verify import NotScored, Result, verify
 from smspace.common.errors import SmspaceError
 from smspace.lake.store import Store, open_store
 
@@ -35,79 +39,59 @@ TITLES = {
 }
 
 
-@dataclass(frozen=True)
-class Result:
-    where: str
-    suite: str
-    version: int
-    task: str
-    entry: str
-    wall_s: float  # over the sessions that ended
-    wall_complete: bool  # False: a session was interrupted or failed, and its time is not in wall_s
-    rows: list[dict[str, Any]]
-
-
 def find_results(paths: list[str | Path], left_out: list[str] | None = None) -> list[Result]:
-    """The results under `paths`; one begun whose first session has not ended (no scores yet) is
-    left out, its folder added to `left_out`."""
-    found = []
+    """The results under `paths`, each verified (bench/verify.py); one whose sessions have written
+    no scores yet is left out, said in `left_out`. A folder given twice (or inside another given)
+    is read once."""
+    found, seen = [], set()
     for path in paths:
         store = open_store(str(path))
-        names = [name for depth in range(DEPTH) for name in store.list("/".join(["*"] * depth + [BENCH]))]
+        patterns = ["/".join(["*"] * depth + [BENCH]) for depth in range(DEPTH)]
+        _refuse_irregular(store, patterns)
+        names = [name for pattern in patterns for name in store.list(pattern)]
         if not names:
             raise SmspaceError(f"{store.url} holds no benchmark result ({BENCH}) within {DEPTH} folders")
-        for name in names:
+        for name in sorted(names):
             folder = store
             for part in name.split("/")[:-1]:
                 folder = folder.child(part)
-            if not folder.exists(SCORES):
-                if left_out is not None:
-                    left_out.append(folder.url)
+            if folder.canonical() in seen:
                 continue
+            seen.add(folder.canonical())
             where = "/".join([str(path).rstrip("/"), *name.split("/")[:-1]])  # as given: a leaderboard moves
-            found.append(replace(_read(folder), where=where))
+            try:
+                found.append(verify(folder, where))
+            except NotScored as e:
+                if left_out is not None:
+                    left_out.append(str(e))
     return found
 
 
-def _read(folder: Store) -> Result:
-    try:
-        record = json.loads(folder.read_bytes(BENCH))
-        rows = json.loads(folder.read_bytes(SCORES))
-        suite = get_suite(f"{record['suite']}@{record['version']}")
-        task = suite.task(record["task"]["name"])
-        entry = record["entry"]["name"] + _params(record["entry"].get("params") or {})
-        walls = [s["wall_s"] for s in record["sessions"]]
-        mode_of_rows = [row["mode"] for row in rows]
-    except (FileNotFoundError, KeyError, TypeError, ValueError) as e:
-        raise SmspaceError(f"{folder.url} is not a readable benchmark result ({type(e).__name__}: {e})") from None
-    if record["task"] != task.protocol():
-        changed = sorted(k for k in task.protocol() if record["task"].get(k) != task.protocol()[k])
-        raise SmspaceError(
-            f"{folder.url}: task {task.name} was measured under another protocol than {suite.label} fixes "
-            f"({', '.join(changed)} differ); it is not comparable"
-        )
-    if len(rows) != task.worlds * len(task.modes) or set(mode_of_rows) != set(task.modes):
-        raise SmspaceError(f"{folder.url}: {len(rows)} scored runs, where task {task.name} has "
-                           f"{task.worlds} worlds x {len(task.modes)} modes")  # fmt: skip
-    wall = sum(float(w) for w in walls if w is not None)
-    return Result(folder.url, suite.name, suite.version, task.name, entry, wall, None not in walls, rows)
-
-
-def _params(params: dict[str, Any]) -> str:
-    return "" if not params else " (" + ", ".join(f"{k}={v}" for k, v in sorted(params.items())) + ")"
+def _refuse_irregular(store: Store, patterns: list[str]) -> None:
+    """A bench.json that is a link, FIFO or folder is named, never skipped in silence (listing
+    sees only plain files) nor opened (a FIFO would block)."""
+    local = store.local_path
+    if local is None:
+        return
+    for pattern in patterns:
+        for path in local.glob(pattern):
+            if not stat.S_ISREG(os.lstat(path).st_mode):
+                raise SmspaceError(f"{path}: not a regular file (a link, folder or special file); results are plain")
 
 
 def cells(results: list[Result]) -> list[dict[str, Any]]:
-    """One cell per entry, task, mode and score: mean, standard deviation and count over worlds."""
+    """One cell per entry, task, mode and score: mean, standard deviation (None for one world) and
+    count over worlds. An entry whose results were made by several codes gets a row per code."""
     seen: dict[tuple[str, str, str], str] = {}
     for r in results:
-        key = (r.suite, r.task, r.entry)
+        key = (r.suite, r.task, r.key)
         if key in seen:
             raise SmspaceError(
                 f"two results of {r.entry} on {r.suite} task {r.task} ({seen[key]} and {r.where}): "
                 "they are not pooled; give one"
             )
         seen[key] = r.where
+    shown = row_names(results)
     table = []
     for r in results:
         by_mode: dict[str, list[dict[str, Any]]] = defaultdict(list)
@@ -116,11 +100,20 @@ def cells(results: list[Result]) -> list[dict[str, Any]]:
         for mode, rows in sorted(by_mode.items()):
             for score in SCORE_NAMES:
                 values = np.array([float(row[score]) for row in rows])
-                table.append({"suite": r.suite, "version": r.version, "task": r.task, "mode": mode, "entry": r.entry,
-                              "score": score, "mean": float(values.mean()),
-                              "std": float(values.std(ddof=1)) if len(values) > 1 else math.nan,
+                table.append({"suite": r.suite, "version": r.version, "task": r.task, "mode": mode,
+                              "entry": shown[r.where], "code": r.code, "score": score, "mean": float(values.mean()),
+                              "std": float(values.std(ddof=1)) if len(values) > 1 else None,
                               "worlds": sorted(int(row["world"]) for row in rows), "wall_s": r.wall_s})  # fmt: skip
     return table
+
+
+def row_names(results: list[Result]) -> dict[str, str]:
+    """A row is one entry and one code: where an entry's results were made by several codes, each
+    row names its code."""
+    codes: dict[str, set[str]] = defaultdict(set)
+    for r in results:
+        codes[r.key].add(r.code)
+    return {r.where: r.entry if len(codes[r.key]) == 1 else f"{r.entry} [code {r.code[:12]}]" for r in results}
 
 
 def columns(table: list[dict[str, Any]]) -> list[tuple[str, str]]:
@@ -138,19 +131,44 @@ def entries(table: list[dict[str, Any]]) -> list[str]:
 
 
 def write_leaderboard(paths: list[str | Path], out: Path, left_out: list[str] | None = None) -> list[Path]:
+    """leaderboard.json, .md and .png in `out`; results of several suites: one leaderboard per
+    suite, in out/<suite>/."""
     results = find_results(paths, left_out)
+    if not results:
+        said = f" ({len(left_out)} left out, said above)" if left_out else ""
+        raise SmspaceError(f"no result to show under {', '.join(map(str, paths))}{said}")
+    if out.exists() and not out.is_dir():
+        raise SmspaceError(f"--out {out} is a file, not a folder")
     suites = sorted({r.suite for r in results})
-    if len(suites) > 1:
-        raise SmspaceError(f"results of several suites ({', '.join(suites)}): one leaderboard per suite")
-    table = cells(results)
-    out.mkdir(parents=True, exist_ok=True)
-    written = [out / "leaderboard.json", out / "leaderboard.md", out / "leaderboard.png"]
-    versions = sorted({r.version for r in results})
-    head = {"suite": suites[0], "versions": versions, "results": sorted(r.where for r in results)}
-    written[0].write_text(json.dumps(head | {"cells": table}, indent=1) + "\n")
-    written[1].write_text(markdown(table, results, head))
-    figure(table, written[2], head)
+    written = []
+    for suite in suites:
+        mine = [r for r in results if r.suite == suite]
+        written += _write_one(mine, out if len(suites) == 1 else out / suite)
     return written
+
+
+def _write_one(results: list[Result], out: Path) -> list[Path]:
+    table = cells(results)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SmspaceError(f"cannot create folder {out}: {e.strerror or e}") from None
+    versions = sorted({r.version for r in results})
+    head = {"suite": results[0].suite, "versions": versions, "results": sorted(r.where for r in results)}
+    paths = [out / "leaderboard.json", out / "leaderboard.md", out / "leaderboard.png"]
+    _replace(paths[0], (json.dumps(head | {"cells": table}, indent=1, allow_nan=False) + "\n").encode())
+    _replace(paths[1], markdown(table, results, head).encode())
+    buffer = io.BytesIO()
+    figure(table, buffer, head)
+    _replace(paths[2], buffer.getvalue())
+    return paths
+
+
+def _replace(path: Path, data: bytes) -> None:
+    """Written beside and renamed over: a link planted at `path` is replaced, never followed."""
+    with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", delete=False) as fh:
+        fh.write(data)
+    os.replace(fh.name, path)
 
 
 def _cell(table: list[dict[str, Any]], entry: str, task: str, mode: str, score: str) -> dict[str, Any] | None:
@@ -161,7 +179,7 @@ def _cell(table: list[dict[str, Any]], entry: str, task: str, mode: str, score: 
 def _shown(cell: dict[str, Any] | None) -> str:
     if cell is None:
         return "—"
-    spread = "" if math.isnan(cell["std"]) else f" ± {cell['std']:.3g}"
+    spread = "" if cell["std"] is None else f" ± {cell['std']:.3g}"
     return f"{cell['mean']:.3g}{spread}"
 
 
@@ -183,15 +201,27 @@ def markdown(table: list[dict[str, Any]], results: list[Result], head: dict[str,
         lines.append("")
     tasks = list(dict.fromkeys(t for t, _ in cols))
     lines += ["## Wall time (s, all sessions)", "", _row("entry", tasks), "|---|" + "---|" * len(tasks)]
-    walls = {(r.entry, r.task): r for r in results}
+    shown = row_names(results)
+    walls = {(shown[r.where], r.task): r for r in results}
     lines += [_row(e, [_wall(walls.get((e, t))) for t in tasks]) for e in rows]
     if not all(r.wall_complete for r in results):
-        lines += ["", "≥: a session of that result was interrupted or failed; its time is not counted."]
+        lines += ["", "≥: a session of that result was killed before it could record its time; it is not counted."]
     return "\n".join(lines) + "\n"
 
 
 def _row(first: str, rest: list[str]) -> str:
-    return "| " + " | ".join([first, *rest]) + " |"
+    return "| " + " | ".join(escape(c) for c in [first, *rest]) + " |"
+
+
+MARKDOWN = str.maketrans({c: "\\" + c for c in "\\`*_[]|~#"})
+
+
+def escape(text: str) -> str:
+    """A value as a markdown table cell shows it, never as markup: HTML escaped, markdown's
+    characters backslashed, line breaks (which names and values cannot hold) refused."""
+    if any(c in text for c in "\r\n"):
+        raise SmspaceError(f"{text[:40]!r}… holds a line break: it cannot be written in a table")
+    return html.escape(text, quote=True).translate(MARKDOWN)
 
 
 def _wall(result: Result | None) -> str:
@@ -200,7 +230,7 @@ def _wall(result: Result | None) -> str:
     return ("" if result.wall_complete else "≥ ") + f"{result.wall_s:.0f}"
 
 
-def figure(table: list[dict[str, Any]], path: Path, head: dict[str, Any]) -> None:
+def figure(table: list[dict[str, Any]], path: Path | BinaryIO, head: dict[str, Any]) -> None:
     """One panel per score: each entry's mean over worlds with its standard deviation, per task and mode."""
     import matplotlib
 
@@ -218,8 +248,8 @@ def figure(table: list[dict[str, Any]], path: Path, head: dict[str, Any]) -> Non
                 if cell is not None:
                     xs.append(j - 0.4 + width * (i + 0.5))
                     ys.append(cell["mean"])
-                    es.append(0.0 if math.isnan(cell["std"]) else cell["std"])
-            ax.errorbar(xs, ys, yerr=es, fmt="o", capsize=3, label=entry)
+                    es.append(0.0 if cell["std"] is None else cell["std"])
+            ax.errorbar(xs, ys, yerr=es, fmt="o", capsize=3, label=entry.replace("$", r"\$"))
         if score == "local_dim":  # what a representation of positions in the plane gives
             ax.axhline(2.0, color="grey", linestyle="--", linewidth=0.8, label="_the plane")
         ax.set_title(TITLES[score] + (" (the plane: 2, dashed)" if score == "local_dim" else ""), fontsize=10)
@@ -231,5 +261,5 @@ def figure(table: list[dict[str, Any]], path: Path, head: dict[str, Any]) -> Non
     axes[0].legend(fontsize=8, ncol=min(len(rows), 5), loc="upper center", bbox_to_anchor=(0.5, 1.45))
     fig.suptitle(f"smspace-bench {head['suite']} ({', '.join(f'v{v}' for v in head['versions'])})", y=1.0)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    fig.savefig(path, dpi=110, bbox_inches="tight", format="png")
     plt.close(fig)

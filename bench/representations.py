@@ -37,7 +37,9 @@ def isomap_of_sensations(ds: Dataset, n_h: int, seed: int) -> np.ndarray:
     fit_on = np.sort(rng.choice(len(s), min(LANDMARKS, len(s)), replace=False))
     with warnings.catch_warnings():  # a graph in several components (alike sensations far apart) is joined
         warnings.simplefilter("ignore")  # by scikit-learn, which says so on every call
-        isomap = Isomap(n_neighbors=min(NEIGHBOURS, len(fit_on) - 1), n_components=n_h).fit(s[fit_on])
+        isomap = Isomap(  # a dense eigensolver: ARPACK starts from a random vector, differing in the last digits
+            n_neighbors=min(NEIGHBOURS, len(fit_on) - 1), n_components=n_h, eigen_solver="dense"
+        ).fit(s[fit_on])
         return isomap.transform(s)
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import datetime
 import json
+import os
+import shutil
 import socket
 import tempfile
 import time
@@ -19,6 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from smspace.bench import evidence
+from smspace.bench.names import canonical_name, canonical_params, folder_of, label_of, model_defaults
 from smspace.bench.representations import REPRESENTATIONS
 from smspace.bench.scores import run_scores, scores_of
 from smspace.bench.suite import Suite, Task, datasets_hash
@@ -28,10 +34,12 @@ from smspace.common.progress import duration
 from smspace.common.provenance import cpu, git_commit, version
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import dataset_id
-from smspace.lake.store import Store, open_store
+from smspace.lake.store import Store, open_store, within
 
 BENCH = "bench.json"
 SCORES = "scores.json"
+LOCK = "bench.lock"  # held by the bench writing the result: a second one into the same folder is refused
+FORMAT = 2  # of scores.json: 2 carries evidence (bench/evidence.py); 1 did not, and is not shown
 
 
 @dataclass(frozen=True)
@@ -42,17 +50,31 @@ class Entry:
     name: str
     params: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def of(cls, name: Any, params: Any = None) -> Entry:
+        """The entry in its canonical form (bench/names.py), refused in one line if it has none: an
+        unknown model, a parameter the model does not take, a value it cannot hold."""
+        name = canonical_name(name)
+        if name in REPRESENTATIONS:
+            if params:
+                raise SmspaceError(f"entry {name!r} learns nothing and takes no parameters")
+            return cls(name, {})
+        from smspace.train.config import MODELS
+
+        defaults = model_defaults(MODELS.get(name))
+        return cls(name, canonical_params(params or {}, defaults, f"entry {name!r}"))
+
     @property
     def learns(self) -> bool:
         return self.name not in REPRESENTATIONS
 
     @property
     def folder(self) -> str:
-        if not self.params:
-            return self.name
-        from smspace.study.file import folder_name  # key=value,… as a study's grid names its folders
+        return folder_of(self.name, self.params)
 
-        return self.name + "," + folder_name(dict(sorted(self.params.items()))).replace("/", "-").replace("\\", "-")
+    @property
+    def label(self) -> str:
+        return label_of(self.name, self.params)
 
     def record(self) -> dict[str, Any]:
         """What the entry is: a registered model's package and code hash included."""
@@ -64,15 +86,11 @@ class Entry:
         return record
 
     def check(self) -> None:
-        """Refused before anything is generated or written: an unknown name, parameters a
-        representation does not take."""
-        if not self.learns:
-            if self.params:
-                raise SmspaceError(f"entry {self.name!r} learns nothing and takes no parameters")
-            return
-        from smspace.train.config import MODELS
-
-        MODELS.get(self.name)
+        """Refused before anything is generated or written: an entry not in its canonical form."""
+        if Entry.of(self.name, self.params) != self:
+            raise SmspaceError(
+                f"entry {self.label!r} is not in its canonical form ({Entry.of(self.name, self.params).label!r})"
+            )
 
 
 def check_task(suite: Suite, task: Task) -> dict[str, str]:
@@ -98,13 +116,22 @@ def run_bench(
     overwrite: bool = False,
     notify: Callable[[str], None] = lambda line: None,
 ) -> list[Store]:
-    """Every entry on every task (each resumed where it stopped); returns the task folders."""
+    """Every entry on every task (each resumed where it stopped); returns the task folders. Every
+    refusal (an entry, a task, the folders, an earlier result, a model's contract) comes before
+    anything is generated or written."""
     for entry in entries:
         entry.check()
     for task in suite.tasks:
         check_task(suite, task)
     lake, out = open_store(lake), open_store(out)
-    _check_earlier(suite, entries, out, overwrite)
+    check_folders(lake, out)
+    _check_earlier(suite, entries, out, overwrite, workers)
+    for task in suite.tasks:
+        _check_lake(lake, suite, task, missing_ok=True)  # a lake of another suite's sizes: before generation
+        for entry in entries:
+            if entry.learns:
+                check_entry_model(task, entry)
+    remove_stale_temporaries()
     done = []
     for task in suite.tasks:  # task by task: a leaderboard fills a column at a time
         _generate(task, lake, gen_workers, executor, notify)  # before any entry: no entry's time includes it
@@ -112,65 +139,147 @@ def run_bench(
         for entry in entries:
             folder = _folder(out, suite, task, entry)
             notify(f"bench: {suite.label} {entry.folder} on {task.name}")
-            session = _begin(folder, suite, task, entry, workers, executor, overwrite)
-            clock = time.monotonic()
-            if entry.learns:
-                rows = _train(task, entry, lake, folder, workers, gen_workers, executor, overwrite, notify)
-            else:
-                rows = _represent(task, entry, lake)
-            folder.put(SCORES, (json.dumps(rows, indent=1) + "\n").encode())
-            _end(folder, session, time.monotonic() - clock)
+            folder.make()
+            with folder.lock(LOCK, f"another smtrain bench is writing {folder.url}", wait=False):
+                session = _begin(folder, suite, task, entry, workers, executor, overwrite)
+                clock = time.monotonic()
+                try:
+                    if entry.learns:
+                        rows = _train(task, entry, lake, folder, workers, gen_workers, executor, overwrite, notify)
+                    else:
+                        rows = _represent(task, entry, lake, folder)
+                except BaseException:
+                    _end(folder, session, time.monotonic() - clock, "failed")
+                    raise
+                scores = {"format": FORMAT, "entry": entry.record(), "session": session, "rows": rows}
+                folder.put(SCORES, (json.dumps(scores, indent=1, allow_nan=False) + "\n").encode())
+                _end(folder, session, time.monotonic() - clock, "ended")
             done.append(folder)
     return done
 
 
+def check_folders(lake: Store, out: Store) -> None:
+    """--out is a folder apart from the lake (results inside the datasets they were measured on,
+    or datasets inside results, would be deleted or listed as the other)."""
+    for store, flag in ((out, "--out"), (lake, "--lake")):
+        if store.is_file():
+            raise SmspaceError(f"{flag} {store.url} is a file, not a folder")
+    if within(out, lake) or within(lake, out):
+        raise SmspaceError(f"--out {out.url} and --lake {lake.url} must be apart (neither inside the other)")
+
+
+def check_entry_model(task: Task, entry: Entry) -> None:
+    """The entry's model on the task's setup, held to its contract (a probe batch, alone and
+    stacked: train/contract.py) before any dataset or result is written."""
+    from smspace.datagen.setups import get_setup
+    from smspace.study.sweep import check_study_model
+    from smspace.train.config import TrainConfig
+
+    template = TrainConfig(dataset="", model=entry.name, model_params=dict(entry.params), n_h=task.n_h,
+                           steps=task.steps, eval_every=task.eval_every)  # fmt: skip
+    check_study_model(template.for_setup(task.setup, task.transitions, get_setup(task.setup).encoder_layers),
+                      task.setup, task.seed)  # fmt: skip
+
+
+TEMPORARY = "smspace-bench-"
+
+
+def remove_stale_temporaries() -> None:
+    """The study files of benches killed (kill -9) before they could remove them: a temporary
+    folder names the process that made it, and is removed once that process is gone."""
+    for path in Path(tempfile.gettempdir()).glob(f"{TEMPORARY}*-*"):
+        pid = path.name[len(TEMPORARY) :].split("-", 1)[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(path, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def plan_bench(
-    suite: Suite, entries: list[Entry], lake: Store | str, out: Store | str, workers: int = 1, overwrite: bool = False
-) -> list[str]:
+    suite: Suite, entries: list[Entry], lake: Store | str, out: Store | str, workers: int = 1, overwrite: bool = False,
+    gen_workers: int | None = None,
+) -> list[str]:  # fmt: skip
     """What `run_bench` would generate, train and take, as each task's study budgets it (measured
-    here and now, study/budget.py), and the whole bench's time. Writes nothing."""
+    here and now, study/budget.py), and the whole bench's time, generation included. Writes nothing."""
     from smspace.study.file import load_study
-    from smspace.study.runner import plan_study
+    from smspace.study.runner import plan_generation, plan_study
 
     for entry in entries:
         entry.check()
     for task in suite.tasks:
         check_task(suite, task)
     lake, out = open_store(lake), open_store(out)
-    _check_earlier(suite, entries, out, overwrite)
-    lines, total_s = [], 0.0
+    check_folders(lake, out)
+    _check_earlier(suite, entries, out, overwrite, workers)
     for task in suite.tasks:
-        generate_s = 0.0  # the task's datasets are generated once, whichever entry comes first
+        for entry in entries:
+            if entry.learns:
+                check_entry_model(task, entry)
+    lines, total_s = [], 0.0
+    lines += busy_cores_note()
+    for task in suite.tasks:
+        _check_lake(lake, suite, task, missing_ok=True)
+        generate_s, _, line = plan_generation(task.setup, task.world_seeds, task.modes, task.transitions, lake,
+                                              gen_workers or workers)  # fmt: skip
+        lines.append(f"{suite.label} task {task.name}: {line}")
+        total_s += generate_s  # once per task, whichever entry comes first
         for entry in entries:
             folder = _folder(out, suite, task, entry)
             lines.append(f"{suite.label} {entry.folder} on {task.name}:")
             if not entry.learns:
                 lines.append(f"  learns nothing: {task.worlds * len(task.modes)} representations of the regular states")
                 continue
-            with tempfile.TemporaryDirectory(prefix="smspace-bench-") as tmp:
+            with tempfile.TemporaryDirectory(prefix=f"{TEMPORARY}{os.getpid()}-") as tmp:
                 path = Path(tmp) / f"{task.name}.toml"
                 path.write_text(study_toml(task, entry))
                 plan = plan_study(load_study(path), f"task {task.name}", lake, folder, workers, overwrite)
-            lines += [f"  {line}" for line in plan.lines[:-1]]  # the last: "nothing was written", said once below
-            generate_s, total_s = max(generate_s, plan.generate_s), total_s + plan.train_s
-        total_s += generate_s
-    lines.append(f"bench: about {duration(total_s)} on {workers} worker(s), at the rates measured now")
+            lines += [f"  {line}" for line in plan.lines[1:-1] if not line.startswith("datasets of ")]
+            total_s += plan.train_s
+    lines.append(
+        f"bench: about {duration(total_s)} on {workers} worker(s), generation included, at the rates measured now"
+    )
     lines.append("dry run: nothing was written")
     return lines
+
+
+BUSY_LOAD = 0.5  # of the cores: above it the rates measured now are those of a shared machine
+
+
+def busy_cores_note() -> list[str]:
+    """A dry run measures its rates now: on cores busy with other work they are slower than an idle
+    machine's, and a bench that runs beside that work takes longer than an idle machine would."""
+    load, cores = os.getloadavg()[0], os.cpu_count() or 1
+    if load <= BUSY_LOAD * cores:
+        return []
+    return [
+        f"note: the cores are busy (load {load:.1f} on {cores} cores): the rates below are measured beside that "
+        "work, so the estimate holds only while it goes on; on an idle machine a bench runs faster, beside more "
+        "work slower (times measured 1.3-3x off on a shared machine)"
+    ]
 
 
 def _folder(out: Store, suite: Suite, task: Task, entry: Entry) -> Store:
     return out.child(suite.label).child(entry.folder).child(task.name)
 
 
-def _check_lake(lake: Store, suite: Suite, task: Task) -> None:
+def _check_lake(lake: Store, suite: Suite, task: Task, missing_ok: bool = False) -> None:
     """What was trained on is what the suite fixed: each dataset's recorded config hash."""
     for name, expected in task.datasets().items():
+        if missing_ok and not lake.child(name).exists("manifest.json"):
+            continue
         found = Dataset.open(name, lake).manifest.config_hash
         if found != expected:
             raise SmspaceError(
                 f"{lake.url}/{name} was generated with config {found}, not the {expected} that suite "
-                f"{suite.label} fixes for task {task.name}; use a lake of its own (--lake)"
+                f"{suite.label} fixes for task {task.name}; give the suite a lake of its own (--lake)"
             )
 
 
@@ -180,11 +289,32 @@ def _train(
 ) -> list[dict[str, Any]]:  # fmt: skip
     from smspace.study.runner import run_study
 
-    with tempfile.TemporaryDirectory(prefix="smspace-bench-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=f"{TEMPORARY}{os.getpid()}-") as tmp:
         path = Path(tmp) / f"{task.name}.toml"
         path.write_text(study_toml(task, entry))
         runs = run_study(path, lake, folder, overwrite, workers, gen_workers, executor, notify)
-    return [run_scores(run) for run in runs]
+    rows = []
+    for run in runs:
+        row, h = run_scores(run, task.steps)
+        rows.append(_scored(folder, task, row, h, lake))
+    return rows
+
+
+def _scored(folder: Store, task: Task, row: dict[str, Any], h: np.ndarray, lake: Store) -> dict[str, Any]:
+    """The row with its evidence (h, written beside the result) and the scores derived from it and
+    from the positions the task's setup gives, exactly as the leaderboard derives them again."""
+    world, mode = row["world"], row["mode"]
+    p = evidence.positions(task.setup, world)
+    _, stored = Dataset.open(dataset_id(task.setup, world, mode), lake).regular_sampling()
+    if not np.array_equal(np.asarray(stored, np.float64), p):
+        where = f"{lake.url}/{dataset_id(task.setup, world, mode)}"
+        raise SmspaceError(
+            f"{where}: its regular sampling is not the one setup {task.setup} gives world {world} today; "
+            "give the suite a lake of its own"
+        )
+    h = np.asarray(h, np.float64)
+    name, digest = evidence.save(folder, world, mode, h)
+    return row | {"h": name, "h_sha256": digest, **scores_of(h, p, world)}
 
 
 def _generate(task: Task, lake: Store, gen_workers: int, executor: str, notify: Callable[[str], None]) -> None:
@@ -202,17 +332,16 @@ def _generate(task: Task, lake: Store, gen_workers: int, executor: str, notify: 
         notify(f"bench: {task.name}'s datasets generated in {time.monotonic() - clock:.0f} s")
 
 
-def _represent(task: Task, entry: Entry, lake: Store) -> list[dict[str, Any]]:
+def _represent(task: Task, entry: Entry, lake: Store, folder: Store) -> list[dict[str, Any]]:
     rows = []
     for seed in task.world_seeds:
         for mode in task.modes:
             ds = Dataset.open(dataset_id(task.setup, seed, mode), lake)
             clock = time.monotonic()
             h = REPRESENTATIONS[entry.name](ds, task.n_h, seed)
-            wall = time.monotonic() - clock
-            _, p = ds.regular_sampling()
-            rows.append({"world": seed, "mode": mode, "step": 0, "wall_s": wall, "run": ds.manifest.dataset_id,
-                         **scores_of(h, p, seed)})  # fmt: skip
+            row = {"world": seed, "mode": mode, "step": 0, "wall_s": time.monotonic() - clock,
+                   "run": ds.manifest.dataset_id}  # fmt: skip
+            rows.append(_scored(folder, task, row, h, lake))
     return rows
 
 
@@ -243,28 +372,74 @@ def _toml_table(params: dict[str, Any]) -> str:
     return "{" + ", ".join(f"{json.dumps(k)} = {json.dumps(v)}" for k, v in params.items()) + "}"
 
 
-def _check_earlier(suite: Suite, entries: list[Entry], out: Store, overwrite: bool) -> None:
+def _check_earlier(suite: Suite, entries: list[Entry], out: Store, overwrite: bool, workers: int) -> None:
     """Every earlier result checked before anything is generated or trained."""
     for task in suite.tasks:
         for entry in entries:
-            _earlier(_folder(out, suite, task, entry), _terms(suite, task, entry), overwrite)
+            _earlier(_folder(out, suite, task, entry), _terms(suite, task, entry, workers), overwrite)
 
 
-def _terms(suite: Suite, task: Task, entry: Entry) -> dict[str, Any]:
-    return {"suite": suite.name, "version": suite.version, "task": task.protocol(), "entry": entry.record(),
-            "datasets": task.datasets()}  # fmt: skip
+def _terms(suite: Suite, task: Task, entry: Entry, workers: int) -> dict[str, Any]:
+    """What a result was made on. The workers of a learned entry are a term: they decide which runs
+    train stacked together, and stacked runs agree with lone ones only to float32 rounding
+    (docs/BENCHMARK.md), so another count gives other bytes."""
+    terms = {"suite": suite.name, "version": suite.version, "task": task.protocol(), "entry": entry.record(),
+             "datasets": task.datasets()}  # fmt: skip
+    return terms | ({"workers": workers} if entry.learns else {})
+
+
+MAX_RECORD = 4 << 20  # bytes of a bench.json or scores.json read: sessions are small
+
+
+def read_json(folder: Store, name: str) -> Any:
+    """A small JSON file of a result, bounded and plain (no NaN, not nested without end)."""
+    size = folder.size(name)
+    if size > MAX_RECORD:
+        raise SmspaceError(f"{folder.url}/{name} is {size} bytes; a result's {name} is at most {MAX_RECORD}")
+    try:
+        return json.loads(folder.read_bytes(name), parse_constant=_refuse_constant)
+    except RecursionError:
+        raise SmspaceError(f"{folder.url}/{name} is nested too deep to be a result") from None
+    except (ValueError, UnicodeDecodeError) as e:
+        raise SmspaceError(f"{folder.url}/{name} is not readable JSON ({e})") from None
+
+
+def _refuse_constant(word: str) -> None:
+    raise ValueError(f"{word} is not a JSON number")
 
 
 def _earlier(folder: Store, terms: dict[str, Any], overwrite: bool) -> dict[str, Any] | None:
     """The result already in `folder` (None: none, or --overwrite), refused if it was made on other
-    terms (another entry's code, another protocol): its sessions would not describe this result."""
-    if overwrite or not folder.exists(BENCH):
+    terms (another code of the entry, another protocol): its sessions would not describe this
+    result. A result of another entry is never replaced, --overwrite or not."""
+    if not folder.exists(BENCH):
         return None
     try:
-        before = json.loads(folder.read_bytes(BENCH))
-    except ValueError as e:
-        raise SmspaceError(f"{folder.url}/{BENCH} is not readable JSON ({e}); --overwrite replaces it") from None
+        before = read_json(folder, BENCH)
+    except SmspaceError as e:
+        if overwrite:
+            return None
+        raise SmspaceError(f"{e}; --overwrite replaces it") from None
+    if not isinstance(before, dict):
+        before = {}
+    was, now = before.get("entry"), terms["entry"]
+    if not isinstance(was, dict) or (was.get("name"), was.get("params")) != (now["name"], now["params"]):
+        shown = label_of(str(was.get("name")), was.get("params") or {}) if isinstance(was, dict) else "?"
+        if (isinstance(was, dict) and isinstance(was.get("params"), dict)) or not isinstance(was, dict):
+            raise SmspaceError(
+                f"{folder.url} holds a result of another entry ({shown}, not {label_of(now['name'], now['params'])}); "
+                "give another --out (--overwrite never replaces another entry's result)"
+            )
+    if overwrite:
+        return None
     changed = [key for key, value in terms.items() if before.get(key) != value]
+    if changed == ["entry"] or ("entry" in changed and was.get("plugin") != now.get("plugin")):
+        code_was = (was.get("plugin") or {}).get("code_sha256", "?") if isinstance(was.get("plugin"), dict) else "?"
+        code_now = (now.get("plugin") or {}).get("code_sha256", "smspace's own")
+        raise SmspaceError(
+            f"{folder.url} holds a result of {label_of(now['name'], now['params'])} made with other code "
+            f"(code {code_was}, now {code_now}); --overwrite replaces it, or give another --out"
+        )
     if changed:
         raise SmspaceError(
             f"{folder.url} holds a result made with another {', '.join(changed)}; "
@@ -274,22 +449,34 @@ def _earlier(folder: Store, terms: dict[str, Any], overwrite: bool) -> dict[str,
 
 
 def _begin(folder: Store, suite: Suite, task: Task, entry: Entry, workers: int, executor: str, overwrite: bool) -> int:
-    """bench.json with this session in it, its wall time unknown until it ends (a session that
-    was interrupted or failed stays so: the leaderboard says the time is incomplete). Returns the
-    session's index."""
-    terms = _terms(suite, task, entry)
+    """bench.json with this session in it, its wall time unknown until it ends (a session killed
+    stays so: the leaderboard says the time is incomplete). A result made on other terms
+    (--overwrite) loses its scores and evidence here, before any work: scores are only ever those
+    of the code bench.json names. Returns the session's index."""
+    terms = _terms(suite, task, entry, workers)
     before = _earlier(folder, terms, overwrite)
+    if before is None:
+        _forget_scores(folder)
     sessions = before.get("sessions", []) if before else []
     session = {"started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "wall_s": None,
-               "workers": workers, "executor": executor, "smspace": version("smspace"), "git_commit": git_commit(),
-               "host": socket.gethostname(), "cores": default_workers(), **cpu()}  # fmt: skip
+               "outcome": None, "workers": workers, "executor": executor, "smspace": version("smspace"),
+               "git_commit": git_commit(), "host": socket.gethostname(), "cores": default_workers(),
+               **cpu()}  # fmt: skip
     record = terms | {"sessions": [*sessions, session]}
     folder.make()
     folder.put(BENCH, (json.dumps(record, indent=1) + "\n").encode())
     return len(sessions)
 
 
-def _end(folder: Store, session: int, wall_s: float) -> None:
-    record = json.loads(folder.read_bytes(BENCH))
-    record["sessions"][session]["wall_s"] = wall_s
+def _forget_scores(folder: Store) -> None:
+    folder.delete(SCORES)
+    proof = folder.child(evidence.EVIDENCE)
+    for name in proof.list("*"):
+        proof.delete(name)
+
+
+def _end(folder: Store, session: int, wall_s: float, outcome: str) -> None:
+    """The session's wall time and how it ended ("ended", "failed": its time counts either way)."""
+    record = read_json(folder, BENCH)
+    record["sessions"][session] |= {"wall_s": wall_s, "outcome": outcome}
     folder.put(BENCH, (json.dumps(record, indent=1) + "\n").encode())

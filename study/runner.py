@@ -214,6 +214,31 @@ def plan_lines(
     return plan_study(study, path, lake, out, workers, overwrite).lines
 
 
+def plan_generation(
+    setup: str, world_seeds: Sequence[int], modes: Sequence[str], n: int, lake: Store, gen_workers: int,
+    probe: SetupProbe | None = None,
+) -> tuple[float, float, str]:  # fmt: skip
+    """(seconds, bytes, a line saying so) to generate the datasets of `setup` the lake lacks, at the
+    rates measured here and now."""
+    spec = get_setup(setup)
+    probe = probe or SetupProbe.of(setup, world_seeds[0], modes[0])
+    ids = [dataset_id(setup, seed, mode) for seed in world_seeds for mode in modes]
+    missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
+    parts = len(missing) * -(-n // spec.default_shard_size)
+    lanes = max(1, min(gen_workers, parts))
+    worlds_to_build = len({i.rsplit("-", 1)[0] for i in missing})  # each worker builds the worlds it draws from
+    seconds = len(missing) * n / probe.gen_rate / lanes + -(-worlds_to_build // lanes) * probe.world_s
+    seconds += budget.process_start_s() if lanes > 1 else 0.0  # a pool's start
+    size = len(missing) * n * probe.bytes_per_transition
+    line = (
+        f"datasets of {setup}: {len(ids)}, {len(ids) - len(missing)} in {lake.url}, {len(missing)} to generate "
+        f"({len(missing) * n} transitions, about {_size(size)} at "
+        f"{probe.bytes_per_transition:.3g} bytes each, {duration(seconds)} at {probe.gen_rate:.4g} transitions/s "
+        "per worker, both measured now)"
+    )
+    return seconds, size, line
+
+
 def plan_study(
     study: StudyFile, path: str, lake: Store, out: Store | str, workers: int | None = None, overwrite: bool = False
 ) -> Plan:
@@ -237,23 +262,12 @@ def plan_study(
     spawn_s = budget.process_start_s()  # this command's own start, and each spawned worker's
     gen_s = gen_bytes = 0.0
     for setup in setups:
-        spec, probe = get_setup(setup), probes[setup]
-        n = spec.default_transitions if study.transitions is None else study.transitions
-        ids = [dataset_id(setup, seed, mode) for seed in study.world_seeds for mode in study.modes]
-        missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
-        parts = len(missing) * -(-n // spec.default_shard_size)
-        lanes = max(1, min(gen_workers, parts))
-        worlds_to_build = len({i.rsplit("-", 1)[0] for i in missing})  # each worker builds the worlds it draws from
-        seconds = len(missing) * n / probe.gen_rate / lanes + -(-worlds_to_build // lanes) * probe.world_s
-        seconds += spawn_s if lanes > 1 else 0.0  # a pool's start
-        gen_s += seconds
-        gen_bytes += len(missing) * n * probe.bytes_per_transition
-        lines.append(
-            f"datasets of {setup}: {len(ids)}, {len(ids) - len(missing)} in {lake.url}, {len(missing)} to generate "
-            f"({len(missing) * n} transitions, about {_size(len(missing) * n * probe.bytes_per_transition)} at "
-            f"{probe.bytes_per_transition:.3g} bytes each, {duration(seconds)} at {probe.gen_rate:.4g} transitions/s "
-            "per worker, both measured now)"
+        n = get_setup(setup).default_transitions if study.transitions is None else study.transitions
+        seconds, size, line = plan_generation(
+            setup, study.world_seeds, study.modes, n, lake, gen_workers, probes[setup]
         )
+        gen_s, gen_bytes = gen_s + seconds, gen_bytes + size
+        lines.append(line)
     total_bytes = 0
     ensembles_s: list[float] = []
     counts = {"new": 0, "resume": 0, "finished": 0}
