@@ -125,14 +125,14 @@ def test_a_plugin_entry_runs_the_tiny_suite_and_lands_on_the_leaderboard(tiny_be
     assert {(e, m) for e, _, m, _ in cells} == {(e, m) for e in ("shallow", "isomap") for m in ("MM", "MME")}
     for cell in cells.values():
         assert cell["worlds"] == [0, 1] and math.isfinite(cell["mean"]) and math.isfinite(cell["std"]), cell
-    # the scores are those of the runs' own embeddings, measured again here
+    # the scores are those of the runs' own embeddings, measured again here (the probe's folds: the world's seed)
     run = RunDir.open(next(p for p in (root / "out/tiny-v1/shallow/grid").iterdir() if "-MM-" in p.name))
     h, p = run.embeddings(run.metrics()[-1]["step"])
-    expected = np.mean([r["probe_r2"] for r in json.loads((root / "out/tiny-v1/shallow/grid/scores.json").read_text())
-                        if r["mode"] == "MM"])  # fmt: skip
+    rows = json.loads((root / "out/tiny-v1/shallow/grid/scores.json").read_text())["rows"]
+    expected = np.mean([r["probe_r2"] for r in rows if r["mode"] == "MM"])
     assert cells[("shallow", "grid", "MM", "probe_r2")]["mean"] == pytest.approx(expected)
-    assert any(r["run"] == run.name and r["probe_r2"] == pytest.approx(probe_r2(h, p, seed=run.config.seed))
-               for r in json.loads((root / "out/tiny-v1/shallow/grid/scores.json").read_text()))  # fmt: skip
+    mine = next(r for r in rows if r["run"] == run.name)
+    assert mine["probe_r2"] == pytest.approx(probe_r2(h, p, seed=mine["world"]), rel=1e-12)
     text = (root / "board/leaderboard.md").read_text()
     assert "| shallow |" in text and "| isomap |" in text and "## Wall time" in text
     assert (root / "board/leaderboard.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -159,7 +159,7 @@ def test_the_leaderboard_refuses_what_would_not_compare(tiny_bench, tmp_path):
     bad = run_cmd("smtrain", "leaderboard", copy, "--out", tmp_path / "b")
     assert bad.returncode != 0 and "another protocol" in bad.stderr and "(steps differ)" in bad.stderr
     record["task"]["steps"] = 60  # back to the suite's: a session that never ended shows as "≥"
-    record["sessions"].append(record["sessions"][0] | {"wall_s": None})
+    record["sessions"].append(record["sessions"][0] | {"wall_s": None, "outcome": None})
     edited.write_text(json.dumps(record))
     interrupted = run_cmd("smtrain", "leaderboard", copy, "--out", tmp_path / "b")
     assert interrupted.returncode == 0, interrupted.stderr
@@ -183,7 +183,7 @@ def test_a_result_made_on_other_terms_is_refused_before_anything_runs(tiny_bench
     for extra in ([], ["--dry-run"]):
         again = run_cmd(*args[:-1], copy, *extra, "--workers", 1, timeout=600)
         assert again.returncode != 0 and len(again.stderr.strip().splitlines()) == 1, again.stderr
-        assert "tiny-v1/isomap/grid holds a result made with another entry" in again.stderr
+        assert "tiny-v1/isomap/grid holds a result of another entry (isomap (neighbours=5)" in again.stderr
         assert {p: p.read_bytes() for p in copy.rglob("*") if p.is_file()} == before
     edited.write_text("{not json")
     corrupt = run_cmd(*args[:-1], copy, "--workers", 1, timeout=600)
@@ -206,9 +206,11 @@ def test_a_bench_dry_run_budgets_every_entry_on_every_task_and_writes_nothing(ti
                     "--out", tmp_path / "out", "--workers", 1, timeout=600)  # fmt: skip
     assert fresh.returncode == 0, fresh.stderr
     lines = fresh.stdout.splitlines()
-    assert [line for line in lines if not line.startswith(" ")][:-2] == [
-        f"tiny-v2 {entry} on {task}:" for task in ("grid", "grid6") for entry in ("shallow", "isomap")
-    ]
+    assert [line.split(":")[0] for line in lines if not line.startswith(" ")][:-2] == [
+        line for task in ("grid", "grid6")
+        for line in (f"tiny-v2 task {task}", *(f"tiny-v2 {entry} on {task}" for entry in ("shallow", "isomap")))
+    ]  # fmt: skip
+    assert "tiny-v2 task grid6: datasets of grid6: 1, 0 in " in fresh.stdout, fresh.stdout
     assert "  runs: 4 new, 0 to resume, 0 finished" in lines and "  runs: 1 new, 0 to resume, 0 finished" in lines
     assert lines[-2].startswith("bench: about ") and lines[-1] == "dry run: nothing was written"
     assert list(tmp_path.iterdir()) == []
@@ -224,15 +226,15 @@ def test_a_bench_of_an_unknown_entry_writes_nothing(tmp_path):
 
 
 def test_the_leaderboard_reads_results_on_object_storage(tiny_bench, tmp_path):
-    """The two files per task that a result is, published to a bucket (a moto server on
+    """The files per task that a result is (bench.json, scores.json, evidence/), published to a bucket (a moto server on
     127.0.0.1): the leaderboard read from s3:// is the one read from the folder."""
     from .servers import moto_s3, s3fs_for
 
     root, _ = tiny_bench
     with moto_s3(tmp_path / "moto.log") as env:
         fs = s3fs_for(env)
-        for path in (root / "out").rglob("*.json"):
-            if path.name in ("bench.json", "scores.json"):
+        for path in (root / "out").rglob("*"):
+            if path.name in ("bench.json", "scores.json") or path.parent.name == "evidence":
                 fs.pipe_file(f"lake/results/{path.relative_to(root / 'out').as_posix()}", path.read_bytes())
         remote = run_cmd("smtrain", "leaderboard", "s3://lake/results", "--out", tmp_path / "remote", env=env)
         assert remote.returncode == 0, remote.stderr
@@ -248,9 +250,9 @@ def test_an_entrys_parameters_reach_its_study_and_name_its_folder():
     from smspace.bench.cli import parse_entry
     from smspace.bench.run import study_toml
 
-    entry = parse_entry("contrastive:temperature=0.2,embedding=16,note=a/b")
-    assert entry.params == {"temperature": 0.2, "embedding": 16, "note": "a/b"}
-    assert entry.folder == "contrastive,embedding=16,note=a-b,temperature=0.2"
+    entry = parse_entry("contrastive:temperature=0.2,embedding=16")
+    assert entry.params == {"embedding": 16, "temperature": 0.2}
+    assert entry.folder == "contrastive,embedding=16,temperature=0.2"
     study = tomllib.loads(study_toml(get_suite("tiny@1").tasks[0], entry))
     assert study["train"]["model"] == "contrastive" and study["train"]["model_params"] == entry.params
     assert study["train"]["steps"] == 60 and study["study"]["worlds"] == 2
@@ -258,7 +260,9 @@ def test_an_entrys_parameters_reach_its_study_and_name_its_folder():
         with pytest.raises(SmspaceError, match="NAME:key=value"):
             parse_entry(bad)
     with pytest.raises(SmspaceError, match="learns nothing"):
-        parse_entry("isomap:k=3").check()
+        parse_entry("isomap:k=3")
+    with pytest.raises(SmspaceError, match="unknown parameter 'note'"):
+        parse_entry("contrastive:note=a/b")
 
 
 def test_the_dimension_is_of_h_over_positions_not_of_its_clusters():
