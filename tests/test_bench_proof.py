@@ -614,3 +614,26 @@ def test_the_api_takes_a_lake_object_or_a_path_alike():
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__]))
+
+
+def test_a_model_that_blocks_stops_its_run_in_one_line_keeping_its_checkpoint(tmp_path, bad_plugins, monkeypatch):
+    """A researcher's objective that never returns (a lock never released) hung `smtrain fit` and
+    the bench's worker forever; $SMSPACE_STEP_LIMIT_S bounds a step."""
+    monkeypatch.setenv("SMSPACE_STEP_LIMIT_S", "2")
+    done = run_cmd("smtrain", "fit", SAMPLES / "grid-seed0-MM", "--model", "blocking", "--steps", 20,
+                   "--eval-every", 10, "--out", tmp_path / "run", timeout=300)  # fmt: skip
+    line = one_line(done)
+    assert "took more than 2 s ($SMSPACE_STEP_LIMIT_S bounds a step)" in line, line
+    assert "the checkpoint of step 0 is kept" in line, line
+
+
+def test_a_model_that_blocks_on_the_probe_batch_is_refused(bad_plugins, monkeypatch):
+    from smspace_bad_plugins import BlockingNet
+
+    from smspace.train.config import TrainConfig
+    from smspace.train.contract import check_model
+
+    monkeypatch.setenv("SMSPACE_STEP_LIMIT_S", "1")
+    monkeypatch.setattr(BlockingNet, "calls", 10)  # blocks on its next call
+    with pytest.raises(SmspaceError, match=r"took more than 1 s on a probe batch"):
+        check_model(TrainConfig(dataset="unused", model="blocking"), 2, 8)

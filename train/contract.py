@@ -18,6 +18,7 @@ import torch
 
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError
+from smspace.common.limits import STEP_LIMIT_ENV, step_limit_s, time_limit
 from smspace.train.config import TrainConfig
 from smspace.train.model import build_model, has_objective, model_label, model_plugin, prediction_loss
 
@@ -31,6 +32,16 @@ def check_model(cfg: TrainConfig, n_motor: int, n_sensor: int, stacked: bool = F
     """Build the config's model and run it once, forward and backward, on a probe batch (and, for
     runs that will train `stacked`, as two stacked copies): one line if it breaks the contract.
     Leaves torch's random state as it found it."""
+    label, limit_s = model_label(cfg.model), step_limit_s()
+
+    def too_long() -> SmspaceError:
+        return SmspaceError(f"{label} took more than {limit_s:g} s on a probe batch (${STEP_LIMIT_ENV} bounds a step)")
+
+    with time_limit(limit_s, too_long):
+        _probe(cfg, n_motor, n_sensor, stacked)
+
+
+def _probe(cfg: TrainConfig, n_motor: int, n_sensor: int, stacked: bool) -> None:
     name, n_h = cfg.model, cfg.n_h
     plugin, label = model_plugin(name), model_label(name)
     batch = probe_batch_size(n_motor, n_sensor, n_h)

@@ -12,6 +12,7 @@ Resuming is loading checkpoints the caller read (`resume`).
 
 from __future__ import annotations
 
+import functools
 import math
 import random
 import time
@@ -24,12 +25,13 @@ import torch
 from torch.nn.parallel import DistributedDataParallel
 
 from smspace.common.errors import SmspaceError
+from smspace.common.limits import STEP_LIMIT_ENV, step_limit_s, time_limit
 from smspace.common.progress import Progress
 from smspace.metrics import spatial_scores
 from smspace.metrics.spatial import DegenerateRepresentation, check_representation
 from smspace.train.config import TrainConfig
 from smspace.train.contract import check_outputs
-from smspace.train.distributed import SINGLE, Ranks, mean_over_ranks, ranks_agree
+from smspace.train.distributed import SINGLE, Ranks, lost_a_peer, mean_over_ranks, ranks_agree
 from smspace.train.ensemble import Stacked, adam_state_of_run, load_adam_state
 from smspace.train.model import Method, build_model, has_objective, model_label, prediction_loss
 from smspace.train.precision import autocast, compiled
@@ -474,22 +476,25 @@ def train(
     bar = Progress(desc, cfg.steps, "step", initial=step, enabled=progress and ranks.primary)
     last_tick = time.monotonic()
     compile_note: dict[str, str] = {}
-    label, first = model_label(cfg.model), True
+    label, first, limit_s = model_label(cfg.model), True, step_limit_s()
     try:
         t0 = time.perf_counter()
         while step < cfg.steps:
             learner.set_lr(learning_rate(cfg, step))
             started = time.perf_counter()
             batch = [_next_batch(b) for b in batches]
-            if first or (step + 1) % cfg.eval_every == 0 or step + 1 == cfg.steps:
-                learner.check_batch(batch, label)  # the real batches, not only the contract's probe sizes
-                first = False
+            last = members[0].rows[-1]["step"] if members[0].rows else 0
             try:
-                losses = mean_over_ranks(learner.train_step(batch), ranks)
+                with time_limit(limit_s, functools.partial(_too_long, label, step + 1, limit_s, last)):
+                    if first or (step + 1) % cfg.eval_every == 0 or step + 1 == cfg.steps:
+                        learner.check_batch(batch, label)  # the real batches, not only the contract's probe sizes
+                        first = False
+                    losses = mean_over_ranks(learner.train_step(batch), ranks)
             except SmspaceError:
                 raise
             except Exception as e:  # a model's step (a loss detached late, memory): one line
-                last = members[0].rows[-1]["step"] if members[0].rows else 0
+                if ranks.distributed and lost_a_peer(e):
+                    raise  # another rank is gone: train/distributed.peer_errors names it
                 raise TrainingFailed(
                     f"{label} failed in training step {step + 1} ({type(e).__name__}: {_first_line(e)}); "
                     f"stopped, the checkpoint of step {last} is kept"
@@ -533,6 +538,13 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, str]:
     prefix = "" if len(rows) == 1 else "median "
     shown = {"loss": ("eval_loss", ".4g"), "D_topo": ("d_topo", ".3g"), "D_metric": ("d_metric", ".3g")}
     return {prefix + name: format(float(np.median([r[key] for r in rows])), fmt) for name, (key, fmt) in shown.items()}
+
+
+def _too_long(label: str, step: int, limit_s: float, last: int) -> TrainingFailed:
+    return TrainingFailed(
+        f"{label}: training step {step} took more than {limit_s:g} s (${STEP_LIMIT_ENV} bounds a step); "
+        f"stopped, the checkpoint of step {last} is kept"
+    )
 
 
 def _first_line(e: BaseException) -> str:

@@ -205,3 +205,17 @@ class OddBatchNet(SoundNet):
     def forward(self, m_t, s_t, m_t1):
         out = super().forward(m_t, s_t, m_t1)
         return out if m_t.shape[-2] in PROBE_SIZES else out[..., :1]
+
+
+class BlockingNet(SoundNet):
+    """Its objective blocks (a lock never released, say) after a few calls."""
+
+    calls = 0
+
+    def objective(self, m_t, s_t, m_t1, s_t1):
+        import time
+
+        BlockingNet.calls += 1
+        if BlockingNet.calls > 4:
+            time.sleep(10_000)
+        return (self(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=-1).mean()
