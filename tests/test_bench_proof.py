@@ -20,13 +20,13 @@ import pytest
 from smspace.bench import evidence
 from smspace.bench.cli import parse_entry
 from smspace.bench.leaderboard import escape, markdown, row_names
-from smspace.bench.scores import scores_of
 from smspace.bench.verify import Result
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
+from smspace.metrics.scores import scores_of
 from smspace.metrics.spatial import DegenerateRepresentation, check_representation, spatial_scores
 
-from .conftest import SAMPLES, run_cmd
+from .conftest import SAMPLES, failed_in_one_line, run_cmd
 
 PLUGINS = Path(__file__).parent / "plugins"
 SHALLOW = "tiny-v1/shallow/grid"
@@ -46,13 +46,7 @@ def bench(tmp_path_factory) -> Path:
     return root
 
 
-def one_line(result) -> str:
-    """The command failed with exactly one error line, its last (progress lines are not errors)."""
-    lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
-    assert result.returncode != 0, (result.returncode, result.stdout, result.stderr)
-    errors = [line for line in lines if ": error: " in line]
-    assert "Traceback" not in result.stderr and len(errors) == 1 and errors[0] == lines[-1], result.stderr
-    return errors[0]
+one_line = failed_in_one_line
 
 
 def board(*paths, out: Path):
@@ -637,3 +631,17 @@ def test_a_model_that_blocks_on_the_probe_batch_is_refused(bad_plugins, monkeypa
     monkeypatch.setattr(BlockingNet, "calls", 10)  # blocks on its next call
     with pytest.raises(SmspaceError, match=r"took more than 1 s on a probe batch"):
         check_model(TrainConfig(dataset="unused", model="blocking"), 2, 8)
+
+
+def test_an_allocation_beyond_the_memory_limit_is_one_line(tmp_path, bad_plugins):
+    """A 64 GiB allocation under `ulimit -v` gave a 105-line traceback."""
+    import resource
+
+    def limit_memory() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (16 << 30, 16 << 30))
+
+    done = run_cmd("smtrain", "fit", SAMPLES / "grid-seed0-MM", "--model", "hungry", "--steps", 20,
+                   "--eval-every", 10, "--out", tmp_path / "run", timeout=300, preexec_fn=limit_memory)  # fmt: skip
+    line = one_line(done)
+    assert "failed in training step" in line and "RuntimeError" in line, line
+    assert "the checkpoint of step 0 is kept" in line, line

@@ -219,3 +219,15 @@ class BlockingNet(SoundNet):
         if BlockingNet.calls > 4:
             time.sleep(10_000)
         return (self(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=-1).mean()
+
+
+class HungryNet(SoundNet):
+    """Its objective asks for 64 GiB after a few calls (a batch dimension squared, say)."""
+
+    calls = 0
+
+    def objective(self, m_t, s_t, m_t1, s_t1):
+        HungryNet.calls += 1
+        if HungryNet.calls > 4:
+            torch.empty(16 << 30, dtype=torch.float32)  # 64 GiB
+        return (self(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=-1).mean()
