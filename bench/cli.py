@@ -11,7 +11,6 @@ import click
 
 from smspace.common.cli import MAX_WORKERS, default_workers, executor_option, friendly_errors, on_interrupt
 from smspace.common.errors import SmspaceError
-from smspace.train.cli import main
 
 BENCH_LAKE = "data/bench-lake"  # a task fixes its datasets' sizes: each suite's live apart, in BENCH_LAKE/<suite>
 BENCH_OUT = "runs/bench"
@@ -58,7 +57,7 @@ def _split_pairs(given: str, spec: str) -> list[str]:
     return [p for p in pairs if p.strip()]
 
 
-@main.command()
+@click.command()
 @click.argument("suite")
 @click.argument("entries", nargs=-1, required=True)
 @click.option("--lake", default=None, help=f"Where the suite's datasets are generated [default: {BENCH_LAKE}/SUITE].")
@@ -98,7 +97,7 @@ def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite, 
         click.echo(folder.url)
 
 
-@main.command()
+@click.command()
 @click.argument("results", nargs=-1, required=True)
 @click.option("--out", default="leaderboard", show_default=True, type=click.Path(path_type=Path))
 @friendly_errors
@@ -114,3 +113,7 @@ def leaderboard(results, out) -> None:
     finally:  # what was left out is said, the table written or not
         for note in left_out:
             click.echo(f"smtrain: note: {note}", err=True)
+
+
+# grouped into smgen and smtrain by smspace/cli.py
+COMMANDS = (bench, leaderboard)

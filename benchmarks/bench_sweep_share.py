@@ -25,7 +25,7 @@ BIN = Path(sys.executable).parent
 def child(lake: str, out: str, worlds: int, steps: int, compile: bool, spawned_at: float) -> None:
     """The sweep, timed part by part in this process."""
     started = time.time()
-    from smspace.study.cli import main
+    from smspace.cli import smtrain as main
     from smspace.train import engine, fit
 
     spent: dict[str, float] = {"step": 0.0, "batches": 0.0, "evaluation": 0.0, "run-folder writes": 0.0}

@@ -10,7 +10,6 @@ import click
 
 from smspace.common.cli import (
     LAKE_OPTION,
-    OneLineErrors,
     default_workers,
     display_name,
     echo_listing,
@@ -33,13 +32,7 @@ from smspace.datagen.options import (
 from smspace.lake.manifest import dataset_id
 
 
-@click.group(name="smgen", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="smspace")
-def main() -> None:
-    """Sensorimotor datasets in an MCAP data lake."""
-
-
-@main.command()
+@click.command()
 @setup_option(required=True)
 @modes_option("--mode", "mode", required=True)
 @transitions_option()
@@ -121,7 +114,7 @@ def _echo_committed(store, results) -> None:
         click.echo(f"{manifest.dataset_id}\t{store.child(manifest.dataset_id)}\t{'written' if written else 'exists'}")
 
 
-@main.command()
+@click.command()
 @click.argument("datasets", nargs=-1, required=True, shell_complete=complete_datasets)
 @LAKE_OPTION
 @friendly_errors
@@ -134,7 +127,7 @@ def finalize(datasets, lake) -> None:
     _echo_committed(store, run(store, [resolve_dataset(ref, store) for ref in datasets]))
 
 
-@main.command("ls")
+@click.command("ls")
 @LAKE_OPTION
 @click.option("--json", "as_json", is_flag=True, help="One JSON object per dataset.")
 @friendly_errors
@@ -169,7 +162,7 @@ def ls_(lake, as_json) -> None:
         )
 
 
-@main.command()
+@click.command()
 @click.argument("dataset", shell_complete=complete_datasets)
 @LAKE_OPTION
 @click.option("--json", "as_json", is_flag=True)
@@ -187,7 +180,7 @@ def info(dataset, lake, as_json) -> None:
         click.echo(f"{key:>22}: {value}")
 
 
-@main.command()
+@click.command()
 @click.argument("datasets", nargs=-1, required=True, shell_complete=complete_datasets)
 @LAKE_OPTION
 @friendly_errors
@@ -209,7 +202,7 @@ def validate(datasets, lake) -> None:
     sys.exit(1 if bad else 0)
 
 
-@main.command()
+@click.command()
 @click.argument("dataset", required=False, shell_complete=complete_datasets)
 @setup_option(help="Preview a world without a dataset (with --seed).")
 @first_seed_option("seed", help="The world to preview (with --setup).")
@@ -232,7 +225,7 @@ def preview(dataset, setup_name, seed, lake, out, n_frames) -> None:
         click.echo(str(path))
 
 
-@main.command()
+@click.command()
 @click.argument("dataset", shell_complete=complete_datasets)
 @LAKE_OPTION
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="Only the first N transitions.")
@@ -249,7 +242,7 @@ def view(dataset, lake, limit, output) -> None:
         click.echo(f"{output.save}\t{n} transitions")
 
 
-@main.command()
+@click.command()
 @click.argument("dataset", shell_complete=complete_datasets)
 @LAKE_OPTION
 @click.option("--format", "fmt", type=click.Choice(["foxglove", "parquet"]), required=True)
@@ -266,5 +259,5 @@ def export(dataset, lake, fmt, out, limit, overwrite) -> None:
     click.echo(f"{out}\t{n} transitions")
 
 
-if __name__ == "__main__":
-    main()
+# grouped into smgen and smtrain by smspace/cli.py
+COMMANDS = (generate, finalize, ls_, info, validate, preview, view, export)

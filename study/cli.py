@@ -5,7 +5,6 @@ added, and nothing in train/ imports the generators or the studies (tests/test_l
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import click
@@ -22,12 +21,12 @@ from smspace.common.cli import (
 )
 from smspace.common.errors import SmspaceError
 from smspace.datagen import options as generation
-from smspace.train.cli import main, say_precision
+from smspace.train.cli import say_precision
 from smspace.train.config import RUNS, flag_fields, flag_name
 from smspace.train.options import config_from_flags, config_options, given_fields, on_command_line
 
 
-@main.command()
+@click.command()
 @click.argument("study_file", required=False, type=click.Path(path_type=Path))
 @click.argument("overrides", nargs=-1)
 @generation.setup_option()
@@ -176,7 +175,5 @@ def _study_command(ctx, study_file, overrides, lake, out, overwrite, executor, w
     _echo_finals(runs)
 
 
-from smspace.bench import cli as _bench  # noqa: E402, F401  (adds smtrain bench and smtrain leaderboard)
-
-if __name__ == "__main__":
-    sys.exit(main(prog_name="smtrain"))
+# grouped into smgen and smtrain by smspace/cli.py
+COMMANDS = (sweep,)

@@ -172,7 +172,7 @@ def test_preview_writes_pictures_of_a_world_and_of_a_dataset(tmp_path):
 
 
 def test_training_on_images(tmp_path):
-    from smspace.study.cli import main as smtrain_main
+    from smspace.cli import smtrain as smtrain_main
     from smspace.train.run_dir import RunDir
 
     from .conftest import SAMPLES

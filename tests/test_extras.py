@@ -10,7 +10,7 @@ from tests.conftest import smgen
 WITHOUT = """
 import sys
 sys.modules[{module!r}] = None  # as if the extra were not installed
-from smspace.datagen.cli import main
+from smspace.cli import smgen as main
 sys.argv = ["smgen", *{args!r}]
 main()
 """

@@ -228,8 +228,9 @@ def test_worlds_derive_their_seeds(tmp_path):
 
 
 def test_python_dash_m_entry_point():
-    proc = subprocess.run([sys.executable, "-m", "smspace.datagen.cli", "--help"], capture_output=True, text=True)
-    assert proc.returncode == 0 and "generate" in proc.stdout
+    """`python -m smspace.cli` is smtrain: how `--nproc` starts its ranks."""
+    proc = subprocess.run([sys.executable, "-m", "smspace.cli", "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0 and "fit" in proc.stdout and "leaderboard" in proc.stdout, proc.stderr
 
 
 def test_a_repair_racing_a_listing_never_hides_a_complete_dataset(grid_lake, tmp_path, monkeypatch):

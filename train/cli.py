@@ -5,14 +5,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
 from pathlib import Path
 
 import click
 
 from smspace.common.cli import (
     LAKE_OPTION,
-    OneLineErrors,
     display_name,
     echo_listing,
     friendly_errors,
@@ -28,13 +26,7 @@ from smspace.train.options import (
 )
 
 
-@click.group(name="smtrain", cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="smspace")
-def main() -> None:
-    """Train and inspect sensorimotor predictive networks."""
-
-
-@main.command()
+@click.command()
 @click.argument("dataset", required=False, shell_complete=complete_datasets)
 @LAKE_OPTION
 @click.option("--out", default=None, help="Run folder, or an fsspec URL [default: runs/<dataset>-nh<N>-seed<S>].")
@@ -86,7 +78,7 @@ def say_precision(flags: dict) -> None:
         click.echo(f"--precision auto: {precision} ({why})", err=True)
 
 
-@main.command()
+@click.command()
 @click.argument("runs", nargs=-1, required=True)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder for figures and tables.")
 @friendly_errors
@@ -104,10 +96,11 @@ def report(runs, out) -> None:
 def _listed(folder, name: str) -> dict:
     """A run's summary, or a "broken" row saying why it cannot be read: one bad run hides no other.
     `name`: where the run lies under the listed folder (sub-study/run for a study's runs)."""
+    from smspace.lake.scan import descend
     from smspace.lake.store import StorageUnreachable
     from smspace.train.run_dir import RunView
 
-    path = folder.child(name) if "/" not in name else _descend(folder, name)
+    path = descend(folder, name)
     try:
         summary = RunView.open(path).summary()
     except StorageUnreachable:
@@ -121,24 +114,13 @@ def _listed(folder, name: str) -> dict:
     return {"name": display_name(name), "study": display_name(study)} | summary
 
 
-def _descend(folder, name: str):
-    for part in name.split("/"):
-        folder = folder.child(part)
-    return folder
-
-
-DEPTH = 3  # runs/<run>, runs/<sweep or study>/<run>, runs/<study>/<combination>/<run>
-
-
 def _run_names(folder) -> list[str]:
     """Every run folder under `folder`, as its path below it: direct ones, and those of the sweeps,
     studies and grid combinations it holds (as `smtrain report` finds them)."""
+    from smspace.lake.scan import folders_holding
     from smspace.train.run_dir import CONFIG
 
-    names: set[str] = set()
-    for depth in range(1, DEPTH + 1):
-        found = {path.rsplit("/", 1)[0] for path in folder.list("*/" * depth + CONFIG)}
-        names |= {n for n in found if not any(n.startswith(run + "/") for run in names)}  # not inside a run
+    names = folders_holding(folder, CONFIG, itself=False)
     return sorted(names, key=lambda n: (n.count("/") > 0, n.rsplit("/", 1)[0] if "/" in n else "", n))
 
 
@@ -148,7 +130,7 @@ def _network(summary: dict) -> str:
     return f"{summary.get('model') or '-'}{shown} {summary.get('precision') or ''}".strip()
 
 
-@main.command("ls")
+@click.command("ls")
 @click.option(
     "--runs", default=RUNS, show_default=True, help="A folder (or fsspec URL) of run folders, sweeps and studies."
 )
@@ -178,7 +160,7 @@ def ls_(runs, as_json) -> None:
     )
 
 
-@main.command()
+@click.command()
 @click.argument("run")
 @click.option("--json", "as_json", is_flag=True)
 @friendly_errors
@@ -229,7 +211,7 @@ def _dataset_software(where: str) -> dict | None:
         return None
 
 
-@main.command()
+@click.command()
 @click.argument("run")
 @view_options
 @friendly_errors
@@ -243,5 +225,5 @@ def view(run, output) -> None:
         click.echo(f"{output.save}\t{n} evaluations")
 
 
-if __name__ == "__main__":
-    sys.exit(main(prog_name="smtrain"))
+# grouped into smgen and smtrain by smspace/cli.py
+COMMANDS = (fit, report, ls_, info, view)

@@ -52,7 +52,7 @@ def launch_if_asked(nproc: int, plan_for: Callable[[int], FitPlan]) -> None:
         raise SmspaceError("--nproc launches its own processes; under torchrun use --nproc-per-node instead")
     plan = plan_for(nproc)  # refused before any rank starts
     with resume_hint(plan.where, nproc):
-        sys.exit(launch_local(nproc, [sys.executable, "-m", "smspace.train.cli", *sys.argv[1:]], plan.where))
+        sys.exit(launch_local(nproc, [sys.executable, "-m", "smspace.cli", *sys.argv[1:]], plan.where))
 
 
 @contextlib.contextmanager
