@@ -27,13 +27,13 @@ def dataset_files(files: dict[str, bytes], dataset: str) -> dict[str, bytes]:
 
 
 def smgen(*args: str):
-    from smspace.datagen.cli import main
+    from smspace.cli import smgen as main
 
     return CliRunner().invoke(main, [str(a) for a in args], prog_name="smgen")
 
 
 def smtrain(*args: str):
-    from smspace.study.cli import main
+    from smspace.cli import smtrain as main
 
     return CliRunner().invoke(main, [str(a) for a in args], prog_name="smtrain")
 
@@ -43,6 +43,23 @@ def run_cmd(*args: str, timeout: float = 120, **kwargs) -> subprocess.CompletedP
     cmd = [str(BIN / args[0]), *map(str, args[1:])]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", **kwargs.pop("env", {})}
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, **kwargs)
+
+
+def failed_in_one_line(result, prog: str | None = None, *, code: int | None = None, alone: bool = False) -> str:
+    """The command failed (exit `code`, or any non-zero) with exactly one error line, its last,
+    and no traceback; `alone`: nothing else was printed either (progress lines are not errors).
+    `result` is an in-process click result (its output) or a finished process (its stderr)."""
+    if hasattr(result, "exit_code"):
+        status, said = result.exit_code, result.output
+    else:
+        status, said = result.returncode, result.stderr
+    lines = [line for line in said.strip().splitlines() if line.strip()]
+    assert (status == code) if code is not None else (status != 0), (status, said)
+    errors = [line for line in lines if ": error: " in line]
+    assert "Traceback" not in said and len(errors) == 1 and errors[0] == lines[-1], said
+    assert not alone or len(lines) == 1, said
+    assert prog is None or errors[0].startswith(f"{prog}: error: "), said
+    return errors[0]
 
 
 @pytest.fixture(scope="session")

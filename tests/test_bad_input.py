@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -14,14 +15,9 @@ from smspace import schemas
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 
-from .conftest import smgen
+from .conftest import failed_in_one_line, smgen
 
-
-def one_error_line(result) -> str:
-    assert result.exit_code == 2, result.output
-    lines = result.output.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("smgen: error: "), result.output
-    return lines[0]
+one_error_line = partial(failed_in_one_line, prog="smgen", code=2, alone=True)
 
 
 @pytest.mark.parametrize(

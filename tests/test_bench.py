@@ -268,14 +268,14 @@ def test_an_entrys_parameters_reach_its_study_and_name_its_folder():
 def test_the_dimension_is_of_h_over_positions_not_of_its_clusters():
     """Five motor states per grid position: an h that is a noisy affine image of p has clusters of
     five, which local PCA alone reads as 1.6 dimensions; over the positions it is the plane's 2."""
-    from smspace.bench.scores import beyond_the_paper, mean_per_position
     from smspace.metrics.dimension import local_pca_dimension
+    from smspace.metrics.scores import SCORES, mean_per_position
 
     _, p = Dataset.open(SAMPLES / "grid-seed0-MM").regular_sampling()
     rng = np.random.default_rng(0)
     h = np.c_[p, np.zeros(len(p))] @ rng.normal(size=(3, 3)) + 0.01 * rng.normal(size=(len(p), 3))
     assert len(mean_per_position(h, p)) == len(np.unique(p, axis=0)) == 25
-    assert local_pca_dimension(h) < 1.8 and beyond_the_paper(h, p, seed=0)["local_dim"] == 2.0
+    assert local_pca_dimension(h) < 1.8 and SCORES["local_dim"].compute(h, p, 0) == 2.0
 
 
 def test_a_baseline_with_its_own_objective_trains_on_two_ranks(tmp_path):

@@ -3,15 +3,13 @@ on the study, plugin and storage surfaces)."""
 
 from __future__ import annotations
 
+from functools import partial
+
 import pytest
 
-from .conftest import SAMPLES, run_cmd
+from .conftest import SAMPLES, failed_in_one_line, run_cmd
 
-
-def one_error(result) -> str:
-    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
-    assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
-    return lines[0]
+one_error = partial(failed_in_one_line, code=2, alone=True)
 
 
 @pytest.mark.parametrize("name", ["../../escaped", "a/b", "/abs", ".hidden", "x" * 101])

@@ -478,16 +478,12 @@ def test_generation_workers_die_with_their_parent(tmp_path, sig):
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGKILL"])
 def test_the_web_viewer_dies_with_its_parent(sig):
     import signal
-    import socket
     import subprocess
     import time
 
     import psutil
 
-    def free_port() -> int:
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            return s.getsockname()[1]
+    from tests.servers import free_port
 
     def listening(port: int) -> bool:
         return any(c.status == "LISTEN" and c.laddr.port == port for c in psutil.net_connections("tcp"))

@@ -6,11 +6,12 @@ from __future__ import annotations
 import gc
 import json
 import shutil
+from functools import partial
 from pathlib import Path
 
 import pytest
 
-from .conftest import SAMPLES, SHARD, forged, smgen, smtrain
+from .conftest import SAMPLES, SHARD, failed_in_one_line, forged, smgen, smtrain
 
 
 @pytest.fixture()
@@ -24,10 +25,7 @@ def tampered(tmp_path) -> Path:
     return lake
 
 
-def one_line(result, prog: str) -> str:
-    lines = result.output.strip().splitlines()
-    assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith(f"{prog}: error: "), result.output
-    return lines[0]
+one_line = partial(failed_in_one_line, code=2, alone=True)  # one_line(result, prog)
 
 
 @pytest.mark.filterwarnings("error::pytest.PytestUnraisableExceptionWarning")  # a writer left open on the way out

@@ -6,14 +6,9 @@ from __future__ import annotations
 
 import shutil
 
-from .conftest import SAMPLES, run_cmd
+from .conftest import SAMPLES, failed_in_one_line, run_cmd
 
-
-def one_error(result) -> str:
-    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
-    assert result.returncode != 0 and lines and "Traceback" not in result.stderr, result.stderr
-    assert lines[-1].startswith(("smtrain: error: ", "smgen: error: ")), result.stderr
-    return lines[-1]
+one_error = failed_in_one_line
 
 
 def fit(*args):

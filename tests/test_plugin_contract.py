@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import SAMPLES, run_cmd
+from .conftest import SAMPLES, failed_in_one_line, run_cmd
 
 PLUGINS = Path(__file__).parent / "plugins"
 
@@ -37,14 +37,7 @@ def bad_plugins():
     plugins.others.cache_clear()
 
 
-def one_error_line(result) -> str:
-    """The command failed with exactly one line, its error (progress lines are not errors)."""
-    lines = [ln for ln in result.stderr.strip().splitlines() if ln.strip()]
-    assert result.returncode != 0, (result.returncode, result.stderr)
-    assert "Traceback" not in result.stderr, result.stderr
-    errors = [ln for ln in lines if ": error: " in ln]
-    assert len(errors) == 1 and errors[0] == lines[-1], result.stderr
-    return errors[0]
+one_error_line = failed_in_one_line
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from tests.conftest import BIN, GRID, dataset_files, local_files
+from tests.conftest import BIN, GRID, dataset_files, failed_in_one_line, local_files
 from tests.servers import free_port, moto_s3, remote_files, s3fs_for, stop_group
 
 pytestmark = pytest.mark.slow
@@ -205,10 +205,8 @@ def test_a_small_arm_dataset_on_s3_equals_local(s3, tmp_path):
 
 
 def _one_line_exit_2(proc: subprocess.CompletedProcess, *words: str) -> None:
-    assert proc.returncode == 2, (proc.stdout, proc.stderr)
-    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr, proc.stderr
-    for word in words:
-        assert word in proc.stderr, proc.stderr
+    line = failed_in_one_line(proc, code=2, alone=True)
+    assert all(word in line for word in words), line
 
 
 @pytest.mark.parametrize("command", ["ls", "generate"])

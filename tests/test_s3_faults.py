@@ -9,10 +9,11 @@ import os
 import signal
 import subprocess
 import time
+from functools import partial
 
 import pytest
 
-from tests.conftest import BIN, GRID
+from tests.conftest import BIN, GRID, failed_in_one_line
 from tests.faults import fault_proxy
 from tests.servers import moto_s3, s3fs_for
 
@@ -38,10 +39,7 @@ def run(proxy, *args, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env={**os.environ, **proxy.env})
 
 
-def one_line(result: subprocess.CompletedProcess, prog: str) -> str:
-    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
-    assert result.returncode == 2 and len(lines) == 1 and lines[0].startswith(f"{prog}: error: "), result.stderr
-    return lines[0]
+one_line = partial(failed_in_one_line, code=2, alone=True)  # one_line(result, prog)
 
 
 def test_a_frozen_endpoint_ends_generate_and_fit_in_one_line(proxy, tmp_path):
@@ -213,7 +211,7 @@ def test_resume_refuses_a_folder_holding_parts_of_two_runs(s3, tmp_path, monkeyp
         monkeypatch.setenv(key, value)
     from click.testing import CliRunner
 
-    from smspace.study.cli import main
+    from smspace.cli import smtrain as main
 
     lake, out = "s3://lake/mixed", "s3://lake/mixed-run"
     assert (

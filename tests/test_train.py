@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -19,18 +20,14 @@ import torch
 from smspace.metrics import spatial_scores
 from smspace.train.run_dir import RunDir
 
-from .conftest import BIN, SAMPLES, smtrain
+from .conftest import BIN, SAMPLES, failed_in_one_line, smtrain
 
 
 def fit(dataset, out: Path, *extra):
     return smtrain("fit", dataset, "--lake", SAMPLES, "--out", out, *extra)
 
 
-def one_error_line(result) -> str:
-    assert result.exit_code != 0, result.output
-    lines = result.output.strip().splitlines()
-    assert lines and lines[-1].startswith("smtrain: error: "), result.output
-    return lines[-1]
+one_error_line = partial(failed_in_one_line, prog="smtrain")
 
 
 def test_short_run_learns_and_writes_a_complete_run_folder(tmp_path):
@@ -297,7 +294,7 @@ def test_sweep_modes_all_is_every_mode(tmp_path):
 def test_a_ray_sweep_without_ray_says_so_before_generating(tmp_path):
     code = (
         "import sys; sys.modules['ray'] = None\n"  # as if the cluster extra were not installed
-        "from smspace.study.cli import main\n"
+        "from smspace.cli import smtrain as main\n"
         f"sys.argv = ['smtrain', 'sweep', '--setup', 'grid', '--worlds', '1', '--executor', 'ray', "
         f"'--lake', {str(tmp_path / 'lake')!r}, '--out', {str(tmp_path / 'runs')!r}]\n"
         "main()\n"

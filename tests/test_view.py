@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import re
 import signal
-import socket
 import subprocess
 import time
 import urllib.request
@@ -19,6 +18,7 @@ from smspace.datagen.export import read_parquet_transitions
 from smspace.lake.dataset import Dataset
 
 from .conftest import BIN, SAMPLES, run_cmd, smgen
+from .servers import free_port
 
 RERUN_ENV = {"CI": "true", "PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/root")}
 
@@ -83,7 +83,7 @@ def test_smgen_view_arm_dataset_has_images_and_a_room_map(tmp_path):
 def test_smtrain_view_run(tmp_path):
     from click.testing import CliRunner
 
-    from smspace.study.cli import main as smtrain_main
+    from smspace.cli import smtrain as smtrain_main
 
     run = tmp_path / "run"
     r = CliRunner().invoke(
@@ -131,12 +131,6 @@ def test_export_bad_input(tmp_path):
     assert r.exit_code == 2
     r = smgen("export", "arm-seed0-MEM", "--lake", SAMPLES, "--format", "parquet", "--out", tmp_path)
     assert r.exit_code == 2 and "is a folder" in r.output
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def listeners(port: int) -> set[str]:
