@@ -23,20 +23,14 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from smspace.bench.run import BENCH
-from smspace.bench.scores import LOWER_IS_BETTER
-from smspace.bench.scores import SCORES as SCORE_NAMES
 from smspace.bench.suite import get_suite
 from smspace.bench.verify import NotScored, Result, verify
 from smspace.common.errors import SmspaceError
+from smspace.lake import scan
 from smspace.lake.store import Store, open_store
+from smspace.metrics.scores import SCORES
 
-DEPTH = 4  # folders below a given one where results are looked for (out/suite/entry/task)
-TITLES = {
-    "d_topo": "D_topo (lower: better)",
-    "d_metric": "D_metric (lower: better)",
-    "probe_r2": "held-out probe R² of p from h (higher: better)",
-    "local_dim": "local-PCA dimension of h",
-}
+SCORE_NAMES = tuple(SCORES)
 
 
 def find_results(paths: list[str | Path], left_out: list[str] | None = None) -> list[Result]:
@@ -46,19 +40,16 @@ def find_results(paths: list[str | Path], left_out: list[str] | None = None) -> 
     found, seen = [], set()
     for path in paths:
         store = open_store(str(path))
-        patterns = ["/".join(["*"] * depth + [BENCH]) for depth in range(DEPTH)]
-        _refuse_irregular(store, patterns)
-        names = [name for pattern in patterns for name in store.list(pattern)]
+        _refuse_irregular(store, scan.patterns(BENCH))
+        names = scan.folders_holding(store, BENCH)
         if not names:
-            raise SmspaceError(f"{store.url} holds no benchmark result ({BENCH}) within {DEPTH} folders")
-        for name in sorted(names):
-            folder = store
-            for part in name.split("/")[:-1]:
-                folder = folder.child(part)
+            raise SmspaceError(f"{store.url} holds no benchmark result ({BENCH}) within {scan.MAX_DEPTH} folders")
+        for name in names:
+            folder = scan.descend(store, name)
             if folder.canonical() in seen:
                 continue
             seen.add(folder.canonical())
-            where = "/".join([str(path).rstrip("/"), *name.split("/")[:-1]])  # as given: a leaderboard moves
+            where = "/".join([str(path).rstrip("/"), *filter(None, name.split("/"))])  # as given: a leaderboard moves
             try:
                 found.append(verify(folder, where))
             except NotScored as e:
@@ -196,7 +187,12 @@ def markdown(table: list[dict[str, Any]], results: list[Result], head: dict[str,
                                  str(task.steps)]))  # fmt: skip
     lines.append("")
     for score in SCORE_NAMES:
-        lines += [f"## {TITLES[score]}", "", _row("entry", [f"{t} {m}" for t, m in cols]), "|---|" + "---|" * len(cols)]
+        lines += [
+            f"## {SCORES[score].heading}",
+            "",
+            _row("entry", [f"{t} {m}" for t, m in cols]),
+            "|---|" + "---|" * len(cols),
+        ]
         lines += [_row(e, [_shown(_cell(table, e, t, m, score)) for t, m in cols]) for e in rows]
         lines.append("")
     tasks = list(dict.fromkeys(t for t, _ in cols))
@@ -252,10 +248,10 @@ def figure(table: list[dict[str, Any]], path: Path | BinaryIO, head: dict[str, A
             ax.errorbar(xs, ys, yerr=es, fmt="o", capsize=3, label=entry.replace("$", r"\$"))
         if score == "local_dim":  # what a representation of positions in the plane gives
             ax.axhline(2.0, color="grey", linestyle="--", linewidth=0.8, label="_the plane")
-        ax.set_title(TITLES[score] + (" (the plane: 2, dashed)" if score == "local_dim" else ""), fontsize=10)
+        ax.set_title(SCORES[score].heading + (" (the plane: 2, dashed)" if score == "local_dim" else ""), fontsize=10)
         ax.set_xticks(range(len(cols)), [f"{t}\n{m}" for t, m in cols], fontsize=8)
         ax.set_xlim(-0.6, len(cols) - 0.4)
-        if LOWER_IS_BETTER[score] and all(c["mean"] > 0 for c in table if c["score"] == score):
+        if SCORES[score].better == "lower" and all(c["mean"] > 0 for c in table if c["score"] == score):
             ax.set_yscale("log")
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend(fontsize=8, ncol=min(len(rows), 5), loc="upper center", bbox_to_anchor=(0.5, 1.45))

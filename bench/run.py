@@ -26,7 +26,7 @@ import numpy as np
 from smspace.bench import evidence
 from smspace.bench.names import canonical_name, canonical_params, folder_of, label_of, model_defaults
 from smspace.bench.representations import REPRESENTATIONS
-from smspace.bench.scores import run_scores, scores_of
+from smspace.bench.scores import run_scores
 from smspace.bench.suite import Suite, Task, datasets_hash
 from smspace.common.cli import default_workers
 from smspace.common.errors import SmspaceError
@@ -35,6 +35,7 @@ from smspace.common.provenance import cpu, git_commit, version
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import dataset_id
 from smspace.lake.store import Store, open_store, within
+from smspace.metrics.scores import scores_of
 
 BENCH = "bench.json"
 SCORES = "scores.json"

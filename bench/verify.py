@@ -17,13 +17,13 @@ from typing import Any
 from smspace.bench import evidence
 from smspace.bench.names import canonical_name, canonical_params, label_of, model_defaults
 from smspace.bench.representations import REPRESENTATIONS
-from smspace.bench.run import BENCH, FORMAT, SCORES, read_json
-from smspace.bench.scores import SCORES as SCORE_NAMES
-from smspace.bench.scores import scores_of
+from smspace.bench.run import BENCH, FORMAT, read_json
+from smspace.bench.run import SCORES as SCORES_FILE
 from smspace.bench.suite import Task, datasets_hash, get_suite
 from smspace.common.errors import DatasetCorrupt, SmspaceError
 from smspace.lake.manifest import dataset_id
 from smspace.lake.store import Store
+from smspace.metrics.scores import SCORES, scores_of
 
 # Scores derived again agree with the stored ones to this (relative, absolute): the same numpy on
 # another CPU sums in another order (LAPACK's least squares, pairwise sums), never more than ~1e-12.
@@ -70,16 +70,16 @@ def verify(folder: Store, where: str) -> Result:
     entry = _dict(record.get("entry"), f"{bench}: entry")
     name, params, learns = _check_entry(entry, bench)
     sessions = _check_sessions(record.get("sessions"), bench)
-    if not _present(folder, SCORES):
+    if not _present(folder, SCORES_FILE):
         outcomes = {_outcome(s) for s in sessions}
         said = "its sessions failed" if outcomes == {"failed"} else "its first session has not ended"
         raise NotScored(f"{folder.url} is left out: {said} (no scores yet)")
-    scores_file = f"{folder.url}/{SCORES}"
-    raw = _read(folder, SCORES)
+    scores_file = f"{folder.url}/{SCORES_FILE}"
+    raw = _read(folder, SCORES_FILE)
     scores = {"format": 1} if isinstance(raw, list) else _dict(raw, scores_file)  # format 1: a list of rows
     if scores.get("format") != FORMAT:
         raise NotScored(
-            f"{folder.url} is left out: its {SCORES} is of format {scores.get('format', 1)!r}, not {FORMAT}, and "
+            f"{folder.url} is left out: its {SCORES_FILE} is of format {scores.get('format', 1)!r}, not {FORMAT}, and "
             "carries no evidence for its scores (measured by an older smspace); measure it again"
         )
     if learns and not (isinstance(record.get("workers"), int) and not isinstance(record["workers"], bool)):
@@ -196,9 +196,6 @@ def _check_sessions(sessions: Any, where: str) -> list[dict[str, Any]]:
     return sessions
 
 
-RANGES = {"d_topo": (0.0, 1.0), "d_metric": (0.0, math.inf), "probe_r2": (-math.inf, 1.0), "local_dim": (1.0, None)}
-
-
 def _check_rows(rows: Any, task: Task, learns: bool, folder: Store, where: str) -> list[dict[str, Any]]:
     expected = {(w, m) for w in task.world_seeds for m in task.modes}
     if not isinstance(rows, list) or len(rows) != len(expected):
@@ -221,10 +218,10 @@ def _check_rows(rows: Any, task: Task, learns: bool, folder: Store, where: str) 
             raise SmspaceError(f"{where}: row {i} was scored at step {said}, not the protocol's {step}")
         if not _finite(row.get("wall_s"), 0.0, MAX_WALL_S):
             raise SmspaceError(f"{where}: row {i} has wall_s {_shown(row.get('wall_s'))}, not seconds (finite, >= 0)")
-        for score in SCORE_NAMES:
-            low, high = RANGES[score]
-            if not _finite(row.get(score), low, task.n_h if high is None else high):
-                raise SmspaceError(f"{where}: row {i} has {score} {_shown(row.get(score))}, not a number it can take")
+        for score in SCORES.values():
+            if not score.can_take(row.get(score.name), task.n_h):
+                said = _shown(row.get(score.name))
+                raise SmspaceError(f"{where}: row {i} has {score.name} {said}, not a number it can take")
         name, digest = row.get("h"), row.get("h_sha256")
         if name != evidence.file_of(world, mode) or not isinstance(digest, str):
             raise SmspaceError(f"{where}: row {i} names no evidence (h, h_sha256) of world {world}, mode {mode}")
@@ -235,7 +232,7 @@ def _check_rows(rows: Any, task: Task, learns: bool, folder: Store, where: str) 
         except SmspaceError as e:
             raise SmspaceError(f"{folder.url}/{evidence.EVIDENCE}/{name}: {e}; it is not scored") from None
         rel, absolute = TOLERANCE
-        wrong = [s for s in SCORE_NAMES if not math.isclose(again[s], row[s], rel_tol=rel, abs_tol=absolute)]
+        wrong = [s for s in SCORES if not math.isclose(again[s], row[s], rel_tol=rel, abs_tol=absolute)]
         if wrong:
             shown = ", ".join(f"{s} {row[s]!r} (its evidence gives {again[s]!r})" for s in wrong)
             raise SmspaceError(f"{where}: row {i} does not follow from its evidence: {shown}")
