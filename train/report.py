@@ -506,6 +506,7 @@ def notices(studies: list[Study]) -> list[str]:
 def expand_runs(paths: list[Path | str]) -> list[Path | str]:
     """Run folders, given themselves or by the folder of a study that holds them (its runs, and
     those of its grid's sub-folders); anything else is refused in one line."""
+    from smspace.lake.scan import folders_holding
     from smspace.lake.store import open_store
     from smspace.train.run_dir import CONFIG
 
@@ -517,9 +518,7 @@ def expand_runs(paths: list[Path | str]) -> list[Path | str]:
         if store.exists(CONFIG):
             found.append(path)
             continue
-        inside = sorted({name.split("/")[0] for name in store.list(f"*/{CONFIG}")})
-        nested = sorted({"/".join(name.split("/")[:2]) for name in store.list(f"*/*/{CONFIG}")})
-        runs = [f"{store.where}/{name}" for name in [*inside, *nested]]
+        runs = [f"{store.where}/{name}" for name in folders_holding(store, CONFIG, itself=False)]
         if not runs:
             raise SmspaceError(f"{path} holds no run folders (no {CONFIG} in it or below)")
         found += [Path(r) if isinstance(store.where, Path) else r for r in runs]
