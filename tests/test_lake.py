@@ -272,3 +272,20 @@ def test_a_catalog_row_without_a_dataset_is_never_shown(grid_lake, tmp_path):
     pq.write_table(forged.replace_schema_metadata(table.schema.metadata), lake / "catalog.parquet")
     listed = smgen("ls", "--lake", lake, "--json").output
     assert "grid-seed9-MM" not in listed and listed.count('"id"') == 3
+
+
+def test_one_scanner_finds_records_at_any_depth_outermost_only(tmp_path):
+    """`smtrain ls` searched 3 folders deep, `report` 2 and `leaderboard` 4: a bench's runs (5 deep)
+    were invisible to two of them. A record inside another's folder belongs to it."""
+    from smspace.lake.scan import descend, folders_holding
+    from smspace.lake.store import open_store
+
+    for folder in ("a", "s/b", "s/grid/c", "bench/v1/entry/task/study/d", "a/checkpoints/old"):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "config.json").write_text("{}")
+    store = open_store(tmp_path)
+    assert folders_holding(store, "config.json") == ["a", "bench/v1/entry/task/study/d", "s/b", "s/grid/c"]
+    assert descend(store, "s/grid/c").exists("config.json")
+    (tmp_path / "config.json").write_text("{}")
+    assert folders_holding(store, "config.json") == [""]
+    assert len(folders_holding(store, "config.json", itself=False)) == 4
