@@ -17,13 +17,21 @@ from smspace.common.errors import SmspaceError
 
 
 class HeldLock:
-    """An open lock file; the lock lasts as long as this object (or the process)."""
+    """An open lock file; the lock lasts until `release` (or the end of a `with` block, or the
+    process). Without a file (`None`): a store that has no locks, where nothing is held."""
 
-    def __init__(self, fh: IO[str]):
+    def __init__(self, fh: IO[str] | None):
         self._fh = fh
 
     def release(self) -> None:
-        self._fh.close()
+        if self._fh is not None:
+            self._fh.close()
+
+    def __enter__(self) -> HeldLock:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
 
 def _open_lock_file(path: Path) -> IO[str]:

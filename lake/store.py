@@ -88,12 +88,6 @@ class Store(ABC):
         """Every name in the folder (files; and sub-folders where the store has folders)."""
         return self.list("*")
 
-    def hold(self, name: str, busy: str) -> HeldLock | None:
-        """An exclusive lock on a file of the folder for as long as it is held, refused at once
-        with `busy` if another process holds it; None where the store has no locks (object
-        storage relies on conditional writes instead)."""
-        return None
-
     def remove_folder(self) -> None:  # noqa: B027 - object storage has no folders to remove
         """Remove the (emptied) folder itself where folders exist."""
 
@@ -177,10 +171,12 @@ class Store(ABC):
         no such witness (local files, multipart uploads)."""
         return None
 
-    def lock(self, name: str, busy: str, wait: bool) -> contextlib.AbstractContextManager:
-        """Mutual exclusion between writers where the store has it (local folders); object storage
-        relies on the create-only commit instead."""
-        return contextlib.nullcontext()
+    def lock(self, name: str, busy: str, wait: bool = False) -> HeldLock:
+        """An exclusive lock on a file of the folder, held until released (or a `with` block
+        ends): if another process holds it, wait (`wait`) or refuse at once with `busy`. Where the
+        store has no locks (object storage) nothing is held: writers rely on its conditional
+        writes instead."""
+        return HeldLock(None)
 
     def remove_partials(self) -> None:  # noqa: B027 - deliberately nothing to do by default
         """Drop what killed writers left; object storage never has partial objects."""
@@ -223,10 +219,6 @@ class LocalStore(Store):
 
     def entries(self) -> list[str]:
         return [p.name for p in self.path.iterdir()] if self.path.is_dir() else []
-
-    def hold(self, name: str, busy: str) -> HeldLock:
-        self._refuse_links()
-        return hold_lock(self.path / name, busy, wait=False)
 
     def remove_folder(self) -> None:
         self._refuse_links()
@@ -301,9 +293,9 @@ class LocalStore(Store):
                 out[path.relative_to(self.path).as_posix()] = f"{st.st_size}-{st.st_mtime_ns}"
         return out
 
-    def lock(self, name: str, busy: str, wait: bool) -> contextlib.AbstractContextManager:
+    def lock(self, name: str, busy: str, wait: bool = False) -> HeldLock:
         self._refuse_links()
-        return _held(self.path / name, busy, wait)
+        return hold_lock(self.path / name, busy, wait)
 
     def remove_partials(self) -> None:
         remove_partials(self.path)
@@ -313,15 +305,6 @@ class LocalStore(Store):
         while not probe.exists() and probe != probe.parent:
             probe = probe.parent
         return shutil.disk_usage(probe).free
-
-
-@contextlib.contextmanager
-def _held(path: Path, busy: str, wait: bool) -> Iterator[None]:
-    lock = hold_lock(path, busy, wait)
-    try:
-        yield
-    finally:
-        lock.release()
 
 
 class RemoteStore(Store):

@@ -264,7 +264,7 @@ class RunDir(RunView):
         folders have a lock; on object storage every later write of this process is conditional on
         the versions seen here, so a second writer makes one of the two stop in one line."""
         if self._lock is None:
-            self._lock = self.store.hold(LOCK, f"{self.url} is being trained by another process")
+            self._lock = self.store.lock(LOCK, f"{self.url} is being trained by another process")
         if self._versions is None:
             found = dict(self.store.fingerprints("*"))
             for sub in SUBFOLDERS:
