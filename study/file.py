@@ -43,7 +43,7 @@ from smspace.common.cli import EXECUTORS, MAX_ENSEMBLE, MAX_WORKERS
 from smspace.common.errors import SmspaceError
 from smspace.lake.manifest import MAX_TRANSITIONS, MAX_WORLDS, SEED_MAX
 from smspace.lake.transitions import MODES
-from smspace.train.config import TrainConfig, flag_fields
+from smspace.train.config import TrainConfig, finite_positive, flag_fields
 from smspace.train.terms import PER_RUN
 
 RECORD = "study-file.json"  # the resolved study, in its output folder
@@ -119,6 +119,30 @@ def _short(value: Any) -> str:
     if isinstance(value, dict):
         return "-".join(f"{k}{_short(v)}" for k, v in sorted(value.items())) or "none"
     return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+@dataclass(frozen=True)
+class StudyRequest:
+    """What starts runs: a study, the bytes it was read from (recorded beside its runs, study.toml)
+    and where it came from, for messages: a file's path, or a bench task."""
+
+    study: StudyFile
+    source: bytes
+    where: str
+
+    @classmethod
+    def from_file(cls, path: Path | str, overrides: Sequence[str] = ()) -> StudyRequest:
+        study, source = read_study(path, overrides)
+        return cls(study, source, str(path))
+
+    @classmethod
+    def from_toml(cls, text: str, where: str, default_name: str = "study") -> StudyRequest:
+        """A study written by code (a bench task's), parsed and checked as a file's would be."""
+        try:
+            raw = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise SmspaceError(f"{where} is not valid TOML: {e}") from None
+        return cls(parse_study(raw, where, default_name=default_name), text.encode(), where)
 
 
 def load_study(path: Path | str, overrides: Sequence[str] = ()) -> StudyFile:
@@ -330,19 +354,18 @@ def _train_value(fields_by_name: dict[str, Field], key: str, value: Any, bad, wh
             raise bad(where, f"expected true or false, got {value!r}")
         return value
     if isinstance(default, float):
-        if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value) or value <= 0:
+        if not finite_positive(value):
             raise bad(where, f"expected a finite positive number, got {value!r}")
         return float(value)
     if isinstance(default, int):
         return _integer(value, bad, where, f.metadata["min"], f.metadata["max"])
-    if key == "compile":  # true and false were its values before auto
-        from smspace.train.config import COMPILE_CHOICES
+    if key == "compile":
+        from smspace.train.config import COMPILE_CHOICES, compile_value
 
-        if isinstance(value, bool):
-            return "on" if value else "off"
-        if value not in COMPILE_CHOICES:
+        compile_as = compile_value(value)
+        if compile_as is None:
             raise bad(where, f"expected one of {', '.join(COMPILE_CHOICES)} (or true, false), got {value!r}")
-        return value
+        return compile_as
     if key == "model":
         from smspace.train.config import model_names
 

@@ -25,6 +25,20 @@ ENTRY_POINTS = "smspace.models"  # where packages register networks of their own
 PRECISIONS = ("fp32", "bf16", "auto")
 COMPILE_CHOICES = ("off", "on", "auto")  # --compile alone: on
 
+
+def finite_positive(value: object) -> bool:
+    """A number (not a boolean), finite and above 0: what a learning rate must be, however given."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+
+
+def compile_value(value: object) -> str | None:
+    """A --compile value as config.json, a study file or a flag gives it; true and false were its
+    values before auto. None: not one."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return value if value in COMPILE_CHOICES else None
+
+
 PAPER_PREDICTOR = (200, 150, 100)
 MAX_WIDTH = 65536  # a layer (or h) wider than this is a typo, not an experiment
 MAX_LAYERS = 32
@@ -112,7 +126,7 @@ class TrainConfig:
                 )
         for name in ("lr_start", "lr_end"):
             value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            if not finite_positive(value):
                 raise SmspaceError(f"--{name.replace('_', '-')} must be a finite positive number, got {value}")
         for name in ("encoder_layers", "predictor_layers"):
             sizes = getattr(self, name)
@@ -120,10 +134,10 @@ class TrainConfig:
                 raise SmspaceError(f"--{name.replace('_', '-')}: {LAYER_BOUNDS}")
         if self.lr_decay_steps <= 0:
             self.lr_decay_steps = max(1, round(0.8 * self.steps))
-        if isinstance(self.compile, bool):  # config.json and study files of before auto said true/false
-            self.compile = "on" if self.compile else "off"
-        if self.compile not in COMPILE_CHOICES:
+        compile_as = compile_value(self.compile)
+        if compile_as is None:
             raise SmspaceError(f"--compile {self.compile!r}: one of {', '.join(COMPILE_CHOICES)}")
+        self.compile = compile_as
         if self.precision not in PRECISIONS:
             raise SmspaceError(f"--precision {self.precision!r}: one of {', '.join(PRECISIONS)}")
         self.precision_asked = self.precision_asked or self.precision

@@ -5,7 +5,6 @@ models (for completion too)."""
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable
 from dataclasses import MISSING
 from typing import TYPE_CHECKING
@@ -13,7 +12,15 @@ from typing import TYPE_CHECKING
 import click
 
 from smspace.common.completion import complete_devices
-from smspace.train.config import COMPILE_CHOICES, LAYER_BOUNDS, PRECISIONS, flag_name, layers_within_bounds, model_names
+from smspace.train.config import (
+    COMPILE_CHOICES,
+    LAYER_BOUNDS,
+    PRECISIONS,
+    finite_positive,
+    flag_name,
+    layers_within_bounds,
+    model_names,
+)
 
 if TYPE_CHECKING:
     from smspace.train.config import TrainConfig
@@ -63,7 +70,7 @@ class PositiveFinite(click.ParamType):
             x = float(value)
         except (TypeError, ValueError):
             self.fail(f"{value!r} is not a number", param, ctx)
-        if not (math.isfinite(x) and x > 0):
+        if not finite_positive(x):
             self.fail(f"{value!r} is not a finite positive number", param, ctx)
         return x
 
