@@ -210,7 +210,6 @@ def plan_bench(
 ) -> list[str]:  # fmt: skip
     """What `run_bench` would generate, train and take, as each task's study budgets it (measured
     here and now, study/budget.py), and the whole bench's time, generation included. Writes nothing."""
-    from smspace.study.file import load_study
     from smspace.study.runner import plan_generation, plan_study
 
     for entry in entries:
@@ -238,10 +237,8 @@ def plan_bench(
             if not entry.learns:
                 lines.append(f"  learns nothing: {task.worlds * len(task.modes)} representations of the regular states")
                 continue
-            with tempfile.TemporaryDirectory(prefix=f"{TEMPORARY}{os.getpid()}-") as tmp:
-                path = Path(tmp) / f"{task.name}.toml"
-                path.write_text(study_toml(task, entry))
-                plan = plan_study(load_study(path), f"task {task.name}", lake, folder, workers, overwrite)
+            request = task_request(task, entry)
+            plan = plan_study(request.study, request.where, lake, folder, workers, overwrite)
             lines += [f"  {line}" for line in plan.lines[1:-1] if not line.startswith("datasets of ")]
             total_s += plan.train_s
     lines.append(
@@ -290,10 +287,7 @@ def _train(
 ) -> list[dict[str, Any]]:  # fmt: skip
     from smspace.study.runner import run_study
 
-    with tempfile.TemporaryDirectory(prefix=f"{TEMPORARY}{os.getpid()}-") as tmp:
-        path = Path(tmp) / f"{task.name}.toml"
-        path.write_text(study_toml(task, entry))
-        runs = run_study(path, lake, folder, overwrite, workers, gen_workers, executor, notify)
+    runs = run_study(task_request(task, entry), lake, folder, overwrite, workers, gen_workers, executor, notify)
     rows = []
     for run in runs:
         row, h = run_scores(run, task.steps)
@@ -344,6 +338,13 @@ def _represent(task: Task, entry: Entry, lake: Store, folder: Store) -> list[dic
                    "run": ds.manifest.dataset_id}  # fmt: skip
             rows.append(_scored(folder, task, row, h, lake))
     return rows
+
+
+def task_request(task: Task, entry: Entry):
+    """The study request a learned entry trains on a task (its source: study_toml, recorded)."""
+    from smspace.study.file import StudyRequest
+
+    return StudyRequest.from_toml(study_toml(task, entry), f"task {task.name}", default_name=task.name)
 
 
 def study_toml(task: Task, entry: Entry) -> str:

@@ -23,7 +23,7 @@ from smspace.lake.manifest import dataset_id
 from smspace.lake.store import Store, open_store
 from smspace.study import budget
 from smspace.study.budget import SetupProbe, makespan
-from smspace.study.file import RECORD, SOURCE, StudyFile, changes, folder_name, load_study, read_study
+from smspace.study.file import RECORD, SOURCE, StudyFile, StudyRequest, changes, folder_name, load_study
 from smspace.study.sweep import (
     SweepPlan,
     check_apart,
@@ -81,7 +81,7 @@ def _refuse_the_same_runs_twice(combos: list[Combination]) -> None:
 
 
 def run_study(
-    path: Path | str,
+    request: StudyRequest | Path | str,
     lake: Store,
     out: Store | str | None,
     overwrite: bool = False,
@@ -91,9 +91,11 @@ def run_study(
     notify: Callable[[str], None] = lambda line: None,
     overrides: Sequence[str] = (),
 ) -> list[RunDir]:
-    """Run (or resume, or extend) a study file; arguments given here override its [run] section,
-    `overrides` (section.key=value) any of its keys."""
-    study, source = read_study(path, overrides)
+    """Run (or resume, or extend) a study (a request, or the path of a study file); arguments given
+    here override its [run] section, `overrides` (section.key=value) any of a file's keys."""
+    if not isinstance(request, StudyRequest):
+        request = StudyRequest.from_file(request, overrides)
+    study, source, path = request.study, request.source, request.where
     out = open_store(out if out is not None else f"{RUNS}/{study.name}")
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = gen_workers or study.run.get("gen_workers", workers)

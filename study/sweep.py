@@ -87,7 +87,7 @@ def recorded_study(out: Store) -> dict[str, Any] | None:
     return first
 
 
-def plan_study(
+def study_terms(
     template: TrainConfig, setup: str, transitions: int, out: Store, overwrite: bool, explicit: frozenset[str]
 ) -> tuple[TrainConfig, str | None]:
     """The template every run of the study trains with (train/terms.py, rule 4), and the line
@@ -192,7 +192,7 @@ class SweepPlan:
 def check_terms(study: SweepPlan, out: Store, overwrite: bool) -> tuple[TrainConfig, str | None]:
     """The template the sweep in `out` trains with, and the line that says how its terms change;
     refused before anything is generated if they may not, or if its model breaks its contract."""
-    template, change = plan_study(study.template, study.setup, study.n_transitions, out, overwrite, study.explicit)
+    template, change = study_terms(study.template, study.setup, study.n_transitions, out, overwrite, study.explicit)
     check_study_model(template, study.setup, study.world_seeds[0])
     return template, change
 
