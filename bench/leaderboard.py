@@ -15,7 +15,6 @@ import io
 import json
 import os
 import stat
-import tempfile
 from collections import defaultdict
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -29,8 +28,10 @@ from smspace.common.errors import SmspaceError
 from smspace.lake import scan
 from smspace.lake.store import Store, open_store
 from smspace.metrics.scores import SCORES
+from smspace.train.pages import record_files, recorded_files, refuse_inside, write_atomically
 
 SCORE_NAMES = tuple(SCORES)
+RECORD = ".smspace-leaderboard.json"  # the pages the last leaderboard wrote here
 
 
 def find_results(paths: list[str | Path], left_out: list[str] | None = None) -> list[Result]:
@@ -130,11 +131,14 @@ def write_leaderboard(paths: list[str | Path], out: Path, left_out: list[str] | 
         raise SmspaceError(f"no result to show under {', '.join(map(str, paths))}{said}")
     if out.exists() and not out.is_dir():
         raise SmspaceError(f"--out {out} is a file, not a folder")
+    refuse_inside(out, [p for p in paths if open_store(str(p)).local_path is not None], verb="reads")
+    earlier = recorded_files(out, RECORD)
     suites = sorted({r.suite for r in results})
     written = []
     for suite in suites:
         mine = [r for r in results if r.suite == suite]
         written += _write_one(mine, out if len(suites) == 1 else out / suite)
+    record_files(out, RECORD, earlier, written)  # one suite's pages of an earlier run: removed, not left stale
     return written
 
 
@@ -147,19 +151,12 @@ def _write_one(results: list[Result], out: Path) -> list[Path]:
     versions = sorted({r.version for r in results})
     head = {"suite": results[0].suite, "versions": versions, "results": sorted(r.where for r in results)}
     paths = [out / "leaderboard.json", out / "leaderboard.md", out / "leaderboard.png"]
-    _replace(paths[0], (json.dumps(head | {"cells": table}, indent=1, allow_nan=False) + "\n").encode())
-    _replace(paths[1], markdown(table, results, head).encode())
+    write_atomically(paths[0], (json.dumps(head | {"cells": table}, indent=1, allow_nan=False) + "\n").encode())
+    write_atomically(paths[1], markdown(table, results, head).encode())
     buffer = io.BytesIO()
     figure(table, buffer, head)
-    _replace(paths[2], buffer.getvalue())
+    write_atomically(paths[2], buffer.getvalue())
     return paths
-
-
-def _replace(path: Path, data: bytes) -> None:
-    """Written beside and renamed over: a link planted at `path` is replaced, never followed."""
-    with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", delete=False) as fh:
-        fh.write(data)
-    os.replace(fh.name, path)
 
 
 def _cell(table: list[dict[str, Any]], entry: str, task: str, mode: str, score: str) -> dict[str, Any] | None:

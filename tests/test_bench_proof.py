@@ -446,6 +446,20 @@ def test_results_of_several_suites_get_a_leaderboard_each_in_its_folder(tmp_path
         "spatial/leaderboard.md", "tiny/leaderboard.md"
     ]  # fmt: skip
     assert "# smspace-bench: spatial (v1)" in (tmp_path / "b/spatial/leaderboard.md").read_text()
+    assert "## D_topo ↓ (lower: better)" in (tmp_path / "b/spatial/leaderboard.md").read_text()
+    (tmp_path / "b/mine.txt").write_text("a file of the user's")
+    monkeypatch.setattr(leaderboard, "find_results", lambda paths, left_out=None: found[1:])
+    leaderboard.write_leaderboard(["r"], tmp_path / "b")  # one suite now: its pages at the top
+    left = sorted(p.relative_to(tmp_path / "b").as_posix() for p in (tmp_path / "b").rglob("*.md"))
+    assert left == ["leaderboard.md"], left  # tiny's and spatial's earlier pages are not left stale
+    assert (tmp_path / "b/mine.txt").exists()  # what it did not write, it never removes
+
+
+def test_the_leaderboard_writes_outside_the_results_it_reads(bench, tmp_path):
+    copy = copied(bench, tmp_path)
+    line = one_line(board(copy, out=copy / "tiny-v1" / "pages"))
+    assert "lies inside" in line and "which it reads" in line, line
+    assert not (copy / "tiny-v1" / "pages").exists()
 
 
 def test_results_of_several_suites_get_a_leaderboard_each(bench, tmp_path):

@@ -16,9 +16,10 @@ import numpy as np
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
-from smspace.lake.store import StorageUnreachable, within
+from smspace.lake.store import StorageUnreachable
 from smspace.metrics import affine_projection
 from smspace.train.colours import position_colours
+from smspace.train.pages import record_files, recorded_files, refuse_inside
 from smspace.train.run_dir import RunView
 from smspace.train.terms import differing, terms
 
@@ -601,11 +602,9 @@ def report(paths: list[Path], out: Path) -> tuple[list[Path], list[str]]:
     matplotlib.use("Agg")
     left_out: list[str] = []
     studies = by_study(load_runs(expand_runs(paths), left_out))
-    for path in paths:
-        if within(out, path):  # its pages would be written into the runs it reads
-            raise SmspaceError(f"--out {out} lies inside {path}, which it reports on; choose another")
+    refuse_inside(out, paths)
     out.mkdir(parents=True, exist_ok=True)
-    earlier = _recorded_files(out)
+    earlier = recorded_files(out, RECORD)
     written, table, figures = [], [], {}
     variables = grid_variables(studies)
     compared = []
@@ -629,16 +628,5 @@ def report(paths: list[Path], out: Path) -> tuple[list[Path], list[str]]:
     notes = [f"report: left out {line}" for line in left_out] + notices(studies)
     page = markdown_report(studies, table, figures, notes, out, compared)
     files = [*compared, *written, out / "final.csv", out / "final.md", out / "runs.csv", page]
-    for name in sorted(earlier - {f.name for f in files}):  # an earlier report's figures of studies gone now
-        (out / name).unlink(missing_ok=True)
-    (out / RECORD).write_text(json.dumps({"files": sorted(f.name for f in files)}, indent=1) + "\n")
+    record_files(out, RECORD, earlier, files)  # an earlier report's figures of studies gone now: removed
     return files, notes
-
-
-def _recorded_files(out: Path) -> set[str]:
-    """What an earlier report wrote into `out` (its record), never anything else found there."""
-    try:
-        names = json.loads((out / RECORD).read_text()).get("files", [])
-    except (FileNotFoundError, ValueError, AttributeError):
-        return set()
-    return {n for n in names if isinstance(n, str) and "/" not in n and n not in ("", ".", "..")}
