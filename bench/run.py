@@ -238,7 +238,7 @@ def plan_bench(
                 lines.append(f"  learns nothing: {task.worlds * len(task.modes)} representations of the regular states")
                 continue
             request = task_request(task, entry)
-            plan = plan_study(request.study, request.where, lake, folder, workers, overwrite)
+            plan = plan_study(request, lake, folder, workers, overwrite)
             lines += [f"  {line}" for line in plan.lines[1:-1] if not line.startswith("datasets of ")]
             total_s += plan.train_s
     lines.append(
@@ -341,37 +341,18 @@ def _represent(task: Task, entry: Entry, lake: Store, folder: Store) -> list[dic
 
 
 def task_request(task: Task, entry: Entry):
-    """The study request a learned entry trains on a task (its source: study_toml, recorded)."""
+    """The study request a learned entry trains on a task (its source, recorded beside the runs: the sections' TOML)."""
     from smspace.study.file import StudyRequest
 
-    return StudyRequest.from_toml(study_toml(task, entry), f"task {task.name}", default_name=task.name)
+    return StudyRequest.from_sections(study_sections(task, entry), f"task {task.name}", default_name=task.name)
 
 
-def study_toml(task: Task, entry: Entry) -> str:
+def study_sections(task: Task, entry: Entry) -> dict[str, dict[str, Any]]:
     """The study a learned entry trains on a task: the task's datasets, its protocol, the entry's model."""
-    lines = [
-        "[study]",
-        f"name = {json.dumps(task.name)}",
-        f"setup = {json.dumps(task.setup)}",
-        f"modes = {json.dumps(list(task.modes))}",
-        f"worlds = {task.worlds}",
-        f"seed = {task.seed}",
-        f"transitions = {task.transitions}",
-        "[train]",
-        f"model = {json.dumps(entry.name)}",
-        f"steps = {task.steps}",
-        f"eval_every = {task.eval_every}",
-        f"n_h = {task.n_h}",
-    ]
-    if entry.params:
-        lines.append(f"model_params = {_toml_table(entry.params)}")
-    return "\n".join(lines) + "\n"
-
-
-def _toml_table(params: dict[str, Any]) -> str:
-    """An inline TOML table of plain values (JSON's spelling of numbers, strings, lists and
-    booleans is TOML's)."""
-    return "{" + ", ".join(f"{json.dumps(k)} = {json.dumps(v)}" for k, v in params.items()) + "}"
+    study = {"name": task.name, "setup": task.setup, "modes": list(task.modes), "worlds": task.worlds,
+             "seed": task.seed, "transitions": task.transitions}  # fmt: skip
+    train = {"model": entry.name, "steps": task.steps, "eval_every": task.eval_every, "n_h": task.n_h}
+    return {"study": study, "train": train | ({"model_params": entry.params} if entry.params else {})}
 
 
 def _check_earlier(suite: Suite, entries: list[Entry], out: Store, overwrite: bool, workers: int) -> None:

@@ -29,6 +29,7 @@ __all__ = [
     "TransitionStream",
     "Transitions",
     "affine_projection",
+    "define_study",
     "dry_run",
     "fit",
     "generate",
@@ -63,6 +64,7 @@ _WHERE = {
     "open_run": "smspace.api",
     "run_study": "smspace.api",
     "dry_run": "smspace.api",
+    "define_study": "smspace.api",
     "report": "smspace.api",
     "fit": "smspace.api",
 }
@@ -81,7 +83,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
-    from smspace.api import Lake, Run, dry_run, fit, generate, load_dataset, open_lake, report, resume
+    from smspace.api import Lake, Run, define_study, dry_run, fit, generate, load_dataset, open_lake, report, resume
     from smspace.common.errors import SmspaceError
     from smspace.lake.dataset import Dataset
     from smspace.lake.transitions import MODES, Transitions

@@ -15,6 +15,7 @@ from smspace.lake.dataset import Dataset, resolve_dataset
 from smspace.lake.dataset import lake_store as _open_store
 from smspace.lake.store import Store
 from smspace.lake.transitions import parse_modes
+from smspace.study.file import StudyRequest
 from smspace.train.run_dir import RunView
 from smspace.words import python_errors
 
@@ -141,15 +142,32 @@ def open_run(where: str | Path | RunView) -> Run:
 
 
 @python_errors
+def define_study(
+    study: dict[str, Any],
+    train: dict[str, Any] | None = None,
+    grid: dict[str, list[Any]] | None = None,
+    pairs: dict[str, list[Any]] | None = None,
+    run: dict[str, Any] | None = None,
+) -> StudyRequest:
+    """A study from code, section by section as a study file has them (docs/STUDIES.md), checked
+    as a file is: `smspace.define_study({"setup": "grid", "worlds": 2}, train={"steps": 200})`. Its TOML
+    is recorded beside its runs as a file's would be."""
+    sections = {"study": study, "train": train, "grid": grid, "pairs": pairs, "run": run}
+    given = {name: table for name, table in sections.items() if table is not None}
+    return StudyRequest.from_sections(given, "smspace.define_study()")
+
+
+@python_errors
 def run_study(
-    study_file: str | Path,
+    study_file: str | Path | StudyRequest,
     out: str | Path | None = None,
     lake: Lake | str | Path | None = None,
     workers: int | None = None,
     overrides: Sequence[str] = (),
     overwrite: bool = False,
 ) -> list[Run]:
-    """Run (or resume, or extend) a study file (docs/STUDIES.md), as `smtrain sweep STUDY.toml`;
+    """Run (or resume, or extend) a study file (docs/STUDIES.md), as `smtrain sweep STUDY.toml`, or
+    a study built by `smspace.define_study`;
     `overrides` as the command's (["train.steps=2000", "grid.n_h=[3,5]"]); `overwrite` replaces
     runs made with other terms. Workers are spawned processes that import your script again: call
     it under `if __name__ == "__main__":` (docs/API.md)."""
@@ -163,15 +181,15 @@ def run_study(
 
 @python_errors
 def dry_run(
-    study_file: str | Path,
+    study_file: str | Path | StudyRequest,
     out: str | Path | None = None,
     lake: Lake | str | Path | None = None,
     workers: int | None = None,
     overrides: Sequence[str] = (),
     overwrite: bool = False,
 ) -> list[str]:
-    """What a study file would generate, train, store and take, as `smtrain sweep STUDY.toml
-    --dry-run` prints it, one line each; writes nothing."""
+    """What a study (a file, or `smspace.define_study`'s) would generate, train, store and take, as
+    `smtrain sweep STUDY.toml --dry-run` prints it, one line each; writes nothing."""
     from smspace.study.runner import dry_run as plan
 
     store = lake.store if isinstance(lake, Lake) else open_lake(lake).store

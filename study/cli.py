@@ -84,7 +84,9 @@ def sweep(
     from smspace.datagen.setups import get_setup
     from smspace.lake.dataset import lake_store
     from smspace.lake.transitions import parse_modes
-    from smspace.study.sweep import sweep as run_sweep
+    from smspace.study.file import StudyRequest
+    from smspace.study.runner import dry_run as plan_only
+    from smspace.study.runner import run_study
     from smspace.train.engine import resolve_device
 
     ctx = click.get_current_context()
@@ -104,15 +106,12 @@ def sweep(
     say_precision(flags)
     resolve_device(template.device)
     out = out or RUNS
-    if dry_run:  # the flags as the study they describe, budgeted as a study file is
-        from smspace.study.file import StudyFile
-        from smspace.study.runner import plan_lines
-
-        given = {name: getattr(template, name) for name in given_fields(ctx)}
-        run = {"workers": workers or default_workers(), "gen_workers": gen_workers or workers or default_workers(),
-               "max_ensemble": max_ensemble}  # fmt: skip
-        study = StudyFile("sweep", setup_name, mode_list, worlds, first_world, transitions, given, {}, run)
-        for line in plan_lines(study, "the flags of smtrain sweep", lake_store(lake), out, workers, overwrite):
+    given = {name: getattr(template, name) for name in given_fields(ctx)}
+    run = {"workers": workers or default_workers(), "gen_workers": gen_workers or default_workers(),
+           "max_ensemble": max_ensemble, "executor": executor}  # fmt: skip
+    request = StudyRequest.from_flags(setup_name, mode_list, worlds, first_world, transitions, given, run)
+    if dry_run:  # budgeted as a study file is
+        for line in plan_only(request, lake_store(lake), out, workers, overwrite):
             click.echo(line)
         return
     message = (
@@ -120,22 +119,7 @@ def sweep(
         "the same command resumes them"
     )
     with on_interrupt(message):
-        runs = run_sweep(
-            setup_name,
-            mode_list,
-            list(range(first_world, first_world + worlds)),
-            template,
-            lake_store(lake),
-            out,
-            transitions,
-            gen_workers or default_workers(),
-            max_ensemble,
-            overwrite,
-            executor,
-            workers or default_workers(),
-            explicit=given_fields(ctx),
-            notify=lambda line: click.echo(line, err=True),
-        )
+        runs = run_study(request, lake_store(lake), out, overwrite, notify=lambda line: click.echo(line, err=True))
     _echo_finals(runs)
 
 

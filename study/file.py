@@ -48,6 +48,7 @@ from smspace.train.terms import PER_RUN
 
 RECORD = "study-file.json"  # the resolved study, in its output folder
 SOURCE = "study-file.toml"  # the file as it was given
+FLAGS = "the flags of smtrain sweep"  # where a study given by flags came from
 SECTIONS = ("study", "train", "grid", "pairs", "run")
 # [run] keys and their bounds: the same as the flags' (a million workers started a process per run)
 RUN_KEYS = {"workers": (1, MAX_WORKERS), "gen_workers": (1, MAX_WORKERS), "max_ensemble": (1, MAX_ENSEMBLE),
@@ -123,12 +124,30 @@ def _short(value: Any) -> str:
 
 @dataclass(frozen=True)
 class StudyRequest:
-    """What starts runs: a study, the bytes it was read from (recorded beside its runs, study.toml)
-    and where it came from, for messages: a file's path, or a bench task."""
+    """What starts runs, whoever asks (a study file, a bench task, `smtrain sweep`'s flags, the
+    Python API): a study, the bytes it was read from (recorded beside its runs as study-file.toml;
+    None for flags, which have none) and where it came from, for messages."""
 
     study: StudyFile
-    source: bytes
+    source: bytes | None
     where: str
+
+    @classmethod
+    def from_sections(
+        cls, sections: dict[str, dict[str, Any]], where: str, default_name: str = "study"
+    ) -> StudyRequest:
+        """A study given as a file's sections ({"study": {…}, "train": {…}, "grid": {…}}), from code;
+        its TOML is the source recorded beside its runs."""
+        return cls.from_toml(toml_text(sections), where, default_name)
+
+    @classmethod
+    def from_flags(
+        cls, setup: str, modes: list[str], worlds: int, seed: int, transitions: int | None,
+        given: dict[str, Any], run: dict[str, Any],
+    ) -> StudyRequest:  # fmt: skip
+        """`smtrain sweep --setup …`: the flags as the study they describe (no grid; `given`: the
+        training fields set on the command line, as a file's [train])."""
+        return cls(StudyFile("sweep", setup, modes, worlds, seed, transitions, given, {}, run), None, FLAGS)
 
     @classmethod
     def from_file(cls, path: Path | str, overrides: Sequence[str] = ()) -> StudyRequest:
@@ -143,6 +162,42 @@ class StudyRequest:
         except tomllib.TOMLDecodeError as e:
             raise SmspaceError(f"{where} is not valid TOML: {e}") from None
         return cls(parse_study(raw, where, default_name=default_name), text.encode(), where)
+
+
+def toml_text(sections: dict[str, dict[str, Any]]) -> str:
+    """A study's sections as TOML (what a bench task or the Python API records as its source):
+    plain values only, each read back by tomllib as it was given."""
+    lines = []
+    for name, table in sections.items():
+        if not isinstance(table, dict):
+            raise SmspaceError(f"{name}: must be a table of keys, got {type(table).__name__}")
+        lines.append(f"[{_toml_key(name)}]")
+        lines += [f"{_toml_key(key)} = {_toml_value(value, f'{name}.{key}')}" for key, value in table.items()]
+    return "\n".join(lines) + "\n"
+
+
+def _toml_key(key: Any) -> str:
+    if not isinstance(key, str):
+        raise SmspaceError(f"{key!r}: a key must be a string")
+    if re.fullmatch(r"[A-Za-z0-9_-]+", key):
+        return key  # a bare key, as a person writes it
+    return json.dumps(key)  # a quoted key: JSON's string escapes are TOML's
+
+
+def _toml_value(value: Any, where: str) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") if math.isinf(value) else repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v, where) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v, where)}" for k, v in value.items()) + "}"
+    raise SmspaceError(f"{where}: {type(value).__name__} is not a value a study can hold")
 
 
 def load_study(path: Path | str, overrides: Sequence[str] = ()) -> StudyFile:

@@ -15,6 +15,7 @@ from typing import Any
 
 from smspace.common.cli import DEFAULT_MAX_ENSEMBLE, default_workers
 from smspace.common.errors import SmspaceError, one_line
+from smspace.common.executors import import_ray
 from smspace.common.main_guard import refuse_unguarded
 from smspace.common.progress import duration
 from smspace.datagen.generate import check_disk
@@ -23,7 +24,7 @@ from smspace.lake.manifest import dataset_id
 from smspace.lake.store import Store, open_store
 from smspace.study import budget
 from smspace.study.budget import SetupProbe, makespan
-from smspace.study.file import RECORD, SOURCE, StudyFile, StudyRequest, changes, folder_name, load_study
+from smspace.study.file import RECORD, SOURCE, StudyFile, StudyRequest, changes, folder_name
 from smspace.study.sweep import (
     SweepPlan,
     check_apart,
@@ -93,9 +94,8 @@ def run_study(
 ) -> list[RunDir]:
     """Run (or resume, or extend) a study (a request, or the path of a study file); arguments given
     here override its [run] section, `overrides` (section.key=value) any of a file's keys."""
-    if not isinstance(request, StudyRequest):
-        request = StudyRequest.from_file(request, overrides)
-    study, source, path = request.study, request.source, request.where
+    request = as_request(request, overrides)
+    study, path = request.study, request.where
     out = open_store(out if out is not None else f"{RUNS}/{study.name}")
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = gen_workers or study.run.get("gen_workers", workers)
@@ -104,17 +104,20 @@ def run_study(
     if executor == "local" and max(workers, gen_workers) > 1:
         refuse_unguarded(f"smspace.run_study(workers={workers})")
     check_apart(out, lake)
+    if executor == "ray":
+        import_ray()  # a missing Ray is said before any dataset is generated
     combos = combinations(study, out)
     checked = [_checked(path, c, overwrite) for c in combos]  # every refusal before any write
     _refuse_what_the_lake_cannot_hold(lake, study, combos)
-    for line in study_changes(study, out, overwrite):
+    for line in study_changes(request, out, overwrite):
         notify(line)
     for _, change in checked:
         if change:
             notify(change)
     out.make()
-    out.put(SOURCE, source)
-    out.put(RECORD, (json.dumps(_resolved(study, combos, checked), indent=1) + "\n").encode())
+    if request.source is not None:  # flags have no file: each sweep folder's study.json is their record
+        out.put(SOURCE, request.source)
+        out.put(RECORD, (json.dumps(_resolved(study, combos, checked), indent=1) + "\n").encode())
     runs, ensembles_todo = [], []
     for combo, (template, _) in zip(combos, checked, strict=True):
         got, todo = prepare(
@@ -125,6 +128,15 @@ def run_study(
     first = combos[0].plan.template
     run_ensembles(ensembles_todo, executor, workers, first.threads, first.device)
     return runs
+
+
+def as_request(request: StudyRequest | Path | str, overrides: Sequence[str] = ()) -> StudyRequest:
+    """A request as given, or the one a study file's path (and its overrides) describes."""
+    if isinstance(request, StudyRequest):
+        if overrides:
+            raise SmspaceError(f"{overrides[0]}: overrides apply to a study file, not to {request.where}")
+        return request
+    return StudyRequest.from_file(request, overrides)
 
 
 def _resolved(study: StudyFile, combos: list[Combination], checked: list[tuple[TrainConfig, str | None]]) -> dict:
@@ -147,9 +159,11 @@ def _checked(path: Path | str, combo: Combination, overwrite: bool) -> tuple[Tra
         raise type(e)(f"{path}: {f'[{at}] ' if at else ''}{e}") from e
 
 
-def study_changes(study: StudyFile, out: Store, overwrite: bool) -> list[str]:
-    """What changed since the study last ran in `out` (nothing for a new folder or --overwrite)."""
-    if overwrite:
+def study_changes(request: StudyRequest, out: Store, overwrite: bool) -> list[str]:
+    """What changed since the study file last ran in `out` (nothing for a new folder, --overwrite
+    or a study given by flags, whose terms each sweep folder's study.json holds)."""
+    study = request.study
+    if overwrite or request.source is None:
         return []
     try:
         recorded = json.loads(out.read_bytes(RECORD))
@@ -187,7 +201,7 @@ def study_changes(study: StudyFile, out: Store, overwrite: bool) -> list[str]:
 
 
 def dry_run(
-    path: Path | str,
+    request: StudyRequest | Path | str,
     lake: Store,
     out: Store | str | None,
     workers: int | None = None,
@@ -196,8 +210,9 @@ def dry_run(
 ) -> list[str]:
     """The lines of a dry run: datasets to generate, runs (new / to resume / finished), the disk
     they need and the time they take at rates measured here and now. Writes nothing."""
-    study = load_study(path, overrides)
-    return plan_lines(study, str(path), lake, out if out is not None else f"{RUNS}/{study.name}", workers, overwrite)
+    request = as_request(request, overrides)
+    out = out if out is not None else f"{RUNS}/{request.study.name}"
+    return plan_study(request, lake, out, workers, overwrite).lines
 
 
 @dataclass(frozen=True)
@@ -207,13 +222,6 @@ class Plan:
     lines: list[str]
     generate_s: float
     train_s: float  # starting processes included
-
-
-def plan_lines(
-    study: StudyFile, path: str, lake: Store, out: Store | str, workers: int | None = None, overwrite: bool = False
-) -> list[str]:
-    """A dry run of a study, whether it came from a file or from a sweep's flags (`path` says which)."""
-    return plan_study(study, path, lake, out, workers, overwrite).lines
 
 
 def plan_generation(
@@ -242,8 +250,10 @@ def plan_generation(
 
 
 def plan_study(
-    study: StudyFile, path: str, lake: Store, out: Store | str, workers: int | None = None, overwrite: bool = False
+    request: StudyRequest, lake: Store, out: Store | str, workers: int | None = None, overwrite: bool = False
 ) -> Plan:
+    """What run_study would do with `request`, budgeted, with nothing written."""
+    study, path = request.study, request.where
     out = open_store(out)
     workers = workers or study.run.get("workers") or default_workers()
     gen_workers = study.run.get("gen_workers", workers)
@@ -259,7 +269,7 @@ def plan_study(
         f"study {study.name} ({path}): setup {', '.join(setups)}, modes {','.join(study.modes)}, worlds {worlds}, "
         f"{len(combos)} combination(s), into {out.url}"
     ]
-    lines += study_changes(study, out, overwrite)
+    lines += study_changes(request, out, overwrite)
     probes = {setup: SetupProbe.of(setup, study.seed, study.modes[0]) for setup in setups}
     spawn_s = budget.process_start_s()  # this command's own start, and each spawned worker's
     gen_s = gen_bytes = 0.0

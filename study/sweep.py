@@ -1,4 +1,7 @@
-"""`smtrain sweep`: every (world, mode) run of a study, generated if missing, trained as ensembles.
+"""One sweep folder of a study: every (world, mode) run, generated if missing, trained as ensembles.
+
+study/runner.py runs a study request (a file, a bench task, `smtrain sweep`'s flags) as one such
+folder per combination of its grid; this module plans and trains the runs of each.
 
 Run folders are the ones `smtrain fit` writes (so ls, info, view, report and fit --resume all work
 on them). A sweep re-run continues where it stopped: finished runs are skipped, the others resume
@@ -17,9 +20,8 @@ import numpy as np
 
 from smspace.common import plugins
 from smspace.common.bounded import run_within
-from smspace.common.cli import DEFAULT_MAX_ENSEMBLE
 from smspace.common.errors import SmspaceError, one_line
-from smspace.common.executors import WorkerDied, import_ray, open_executor
+from smspace.common.executors import WorkerDied, open_executor
 from smspace.datagen.generate import generate
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup, setup_plugin
@@ -144,33 +146,6 @@ def plan_runs(
             run = RunDir.create(path, extended or run.config, overwrite=True)
         plans.append((run, step))
     return plans
-
-
-def sweep(
-    setup: str,
-    modes: list[str],
-    world_seeds: list[int],
-    template: TrainConfig,
-    lake: Store | str,
-    out: Store | Path | str,
-    transitions: int | None = None,
-    gen_workers: int = 1,
-    max_ensemble: int = DEFAULT_MAX_ENSEMBLE,
-    overwrite: bool = False,
-    executor: str = "local",
-    workers: int = 1,
-    explicit: frozenset[str] = frozenset(),
-    notify: Callable[[str], None] = lambda line: None,
-) -> list[RunDir]:
-    """`explicit`: the training flags the user gave; `notify`: where a change of the study's terms
-    (an extension) is said, before anything is generated or trained."""
-    study = SweepPlan(setup, modes, world_seeds, template, transitions, explicit)
-    check_apart(out, lake)
-    if executor == "ray":
-        import_ray()  # a missing Ray is said before any dataset is generated
-    runs, ensembles_todo = prepare(study, lake, out, gen_workers, max_ensemble, overwrite, workers, notify)
-    run_ensembles(ensembles_todo, executor, workers, template.threads, template.device)
-    return runs
 
 
 @dataclass(frozen=True)

@@ -248,12 +248,14 @@ def test_an_entrys_parameters_reach_its_study_and_name_its_folder():
     import tomllib
 
     from smspace.bench.cli import parse_entry
-    from smspace.bench.run import study_toml
+    from smspace.bench.run import task_request
 
     entry = parse_entry("contrastive:temperature=0.2,embedding=16")
     assert entry.params == {"embedding": 16, "temperature": 0.2}
     assert entry.folder == "contrastive,embedding=16,temperature=0.2"
-    study = tomllib.loads(study_toml(get_suite("tiny@1").tasks[0], entry))
+    request = task_request(get_suite("tiny@1").tasks[0], entry)
+    assert request.study.train["model_params"] == entry.params
+    study = tomllib.loads(request.source.decode())  # what is recorded beside the runs
     assert study["train"]["model"] == "contrastive" and study["train"]["model_params"] == entry.params
     assert study["train"]["steps"] == 60 and study["study"]["worlds"] == 2
     for bad in ("contrastive:temperature", "contrastive:=1"):

@@ -184,3 +184,41 @@ def test_a_dry_run_plans_what_the_sweep_will_do_with_the_recorded_ensembles(tmp_
     assert "in 3 ensemble(s) of 1 (" in dry.stdout  # the recorded groups, not one group of 3
     assert "runs: 1 new, 2 to resume, 0 finished" in dry.stdout
     assert "3 runs, 500 run-steps to train" in dry.stdout  # 2 x 100 resumed + 300 afresh
+
+
+def test_flags_a_study_file_and_the_api_are_one_request_trained_alike(tmp_path):
+    """Every way of starting runs builds one study request for one runner (study/runner.py): the
+    same study given by flags, by a file and by smspace.define_study trains the same weights; only a
+    file and the API have a source to record."""
+    import torch
+
+    import smspace
+    from smspace.train.run_dir import RunDir
+
+    lake = tmp_path / "lake"
+    train = ["--steps", 100, "--eval-every", 50, "--batch-size", 50, "--nh", 3]
+    dataset = ["--setup", "grid", "--modes", "MM", "--worlds", 1, "--seed", 5, "--transitions", 3000]
+    flags = smtrain("sweep", *dataset, *train, "--workers", 1, "--lake", lake, "--out", tmp_path / "flags")
+    assert flags.returncode == 0, flags.stderr
+    file = tmp_path / "s.toml"
+    file.write_text(TINY.format(steps=100, extra="eval_every = 50\nn_h = 3").replace("eval_every = 100\n", "")
+                    .replace("[grid]\nn_h = [3, 4]\n", "").replace("workers = 2", "workers = 1"))  # fmt: skip
+    from_file = smtrain("sweep", file, "--lake", lake, "--out", tmp_path / "file")
+    assert from_file.returncode == 0, from_file.stderr
+    study = smspace.define_study(
+        {"setup": "grid", "modes": ["MM"], "worlds": 1, "seed": 5, "transitions": 3000},
+        train={"steps": 100, "eval_every": 50, "batch_size": 50, "n_h": 3},
+    )
+    smspace.run_study(study, out=tmp_path / "api", lake=lake, workers=1)
+
+    name = "grid-seed5-MM-nh3-seed5"
+    weights = [RunDir.open(tmp_path / way / name).load_checkpoint()["model"] for way in ("flags", "file", "api")]
+    for other in weights[1:]:
+        assert weights[0].keys() == other.keys()
+        assert all(torch.equal(weights[0][k], other[k]) for k in weights[0])
+    assert not (tmp_path / "flags" / "study-file.toml").exists()  # flags have no file to record
+    assert (tmp_path / "file" / "study-file.toml").read_bytes() == file.read_bytes()
+    recorded = (tmp_path / "api" / "study-file.toml").read_text()
+    assert "n_h = 3" in recorded and json.loads((tmp_path / "api" / "study-file.json").read_text())["seed"] == 5
+    with pytest.raises(smspace.SmspaceError, match=r"train\.steps: "):
+        smspace.define_study({"setup": "grid"}, train={"steps": -1})
