@@ -29,6 +29,7 @@ from smspace.bench.representations import REPRESENTATIONS
 from smspace.bench.scores import run_scores
 from smspace.bench.suite import Suite, Task, datasets_hash
 from smspace.common.cli import default_workers
+from smspace.common.differing import differing
 from smspace.common.errors import SmspaceError
 from smspace.common.progress import duration
 from smspace.common.provenance import cpu, git_commit, version
@@ -415,7 +416,7 @@ def _earlier(folder: Store, terms: dict[str, Any], overwrite: bool) -> dict[str,
             )
     if overwrite:
         return None
-    changed = [key for key, value in terms.items() if before.get(key) != value]
+    changed = differing(before, terms, within=terms)
     if changed == ["entry"] or ("entry" in changed and was.get("plugin") != now.get("plugin")):
         code_was = (was.get("plugin") or {}).get("code_sha256", "?") if isinstance(was.get("plugin"), dict) else "?"
         code_now = (now.get("plugin") or {}).get("code_sha256", "smspace's own")

@@ -20,6 +20,7 @@ from smspace.bench.representations import REPRESENTATIONS
 from smspace.bench.run import BENCH, FORMAT, read_json
 from smspace.bench.run import SCORES as SCORES_FILE
 from smspace.bench.suite import Task, datasets_hash, get_suite
+from smspace.common.differing import differing
 from smspace.common.errors import DatasetCorrupt, SmspaceError
 from smspace.lake.manifest import dataset_id
 from smspace.lake.store import Store
@@ -60,7 +61,7 @@ def verify(folder: Store, where: str) -> Result:
     except SmspaceError as e:
         raise SmspaceError(f"{bench}: {e}") from None
     protocol = task.protocol()
-    changed = sorted(k for k in protocol.keys() | task_block.keys() if task_block.get(k) != protocol.get(k))
+    changed = differing(task_block, protocol)
     if changed:
         raise SmspaceError(
             f"{bench}: task {task.name} was measured under another protocol than {suite.label} fixes "

@@ -17,6 +17,7 @@ from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
 from typing import Any
 
+from smspace.common.differing import described
 from smspace.common.errors import SmspaceError, one_line
 
 
@@ -184,5 +185,4 @@ def label(kind: str, name: str, plugin: Plugin | None) -> str:
 
 def changes(was: dict[str, Any], now: dict[str, Any]) -> str:
     """What differs between two records, as "key old -> new, ..." (a plugin updated, say)."""
-    keys = sorted(k for k in was.keys() | now.keys() if was.get(k) != now.get(k))
-    return ", ".join(f"{k} {was.get(k)} -> {now.get(k)}" for k in keys)
+    return ", ".join(described(was, now, shown=str))

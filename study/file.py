@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from smspace.common.cli import EXECUTORS, MAX_ENSEMBLE, MAX_WORKERS
+from smspace.common.differing import described
 from smspace.common.errors import SmspaceError
 from smspace.lake.manifest import MAX_TRANSITIONS, MAX_WORLDS, SEED_MAX
 from smspace.lake.transitions import MODES
@@ -450,13 +451,7 @@ def changes(recorded: dict[str, Any], now: dict[str, Any]) -> list[str]:
     for section in ("name", "setup", "modes", "worlds", "seed", "transitions", "train", "grid", "pairs"):
         a, b = recorded.get(section), now.get(section)
         if isinstance(a, dict) and isinstance(b, dict):
-            for key in sorted(a.keys() | b.keys()):
-                if a.get(key) != b.get(key):
-                    out.append(f"{section}.{key} {_shown(a.get(key))} -> {_shown(b.get(key))}")
-        elif a != b:
-            out.append(f"{section} {_shown(a)} -> {_shown(b)}")
+            out += described(a, b, prefix=f"{section}.")
+        else:
+            out += described({section: a}, {section: b})
     return out
-
-
-def _shown(value: Any) -> str:
-    return "(unset)" if value is None else json.dumps(value)

@@ -20,6 +20,7 @@ import numpy as np
 
 from smspace.common import plugins
 from smspace.common.bounded import run_within
+from smspace.common.differing import differing
 from smspace.common.errors import SmspaceError, one_line
 from smspace.common.executors import WorkerDied, open_executor
 from smspace.datagen.generate import generate
@@ -34,7 +35,7 @@ from smspace.train.engine import resolve_device
 from smspace.train.fit import train_ensemble
 from smspace.train.precision import say_notes_through
 from smspace.train.run_dir import CONFIG, RunDir
-from smspace.train.terms import HISTORY, STUDY, differing, study_template, terms
+from smspace.train.terms import HISTORY, STUDY, grown, study_template, terms
 
 
 def study_record(out: Store) -> dict[str, Any] | None:
@@ -119,15 +120,14 @@ def plan_runs(
             continue
         run = RunDir.open(path)
         old = run.config
-        diff = differing(old.to_dict(), cfg.to_dict(), ignore=("steps", "run_id", *HISTORY))
-        diff = [k for k in diff if k in run.recorded_keys()]  # a field an older smspace did not record is unknown
+        recorded = run.recorded_keys()  # a field an older smspace did not record is unknown, not different
+        diff = differing(old.to_dict(), cfg.to_dict(), ignore=("steps", "run_id", *HISTORY), within=recorded)
         if diff:
             raise SmspaceError(f"{path} holds a run with another {', '.join(diff)}; pass --overwrite or --out")
-        if cfg.steps < old.steps:  # the study's terms were checked: only a run made by hand lands here
-            raise SmspaceError(f"{path} holds a run of {old.steps} steps; this study has {cfg.steps}")
+        # the study's terms were checked: only a run made by hand is shorter than its study
+        extension = grown(old.steps, cfg.steps, f"{path} holds a run of {old.steps} steps; this study has {cfg.steps}")
         extended = None
-        if cfg.steps > old.steps:
-            extension = {"from_steps": old.steps, "to_steps": cfg.steps}
+        if extension is not None:
             extended = replace(cfg, run_id=old.run_id, extensions=[*old.extensions, extension])
         actions.append((path, cfg, (run, extended)))
     out.make()

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
+from smspace.common.errors import SmspaceError
 from smspace.train.run_dir import RunDir
 
 from .conftest import SAMPLES, smtrain
@@ -100,3 +103,18 @@ def test_a_study_with_other_terms_is_refused_before_anything_is_generated(tmp_pa
     assert "--steps 20 is fewer than the 40 steps of the study" in line
     assert sorted(p.name for p in lake.iterdir()) == before  # world 5 was never generated
     assert sorted(p.name for p in out.iterdir()) == ["grid-seed4-MM-nh3-seed4", "study.json"]
+
+
+def test_one_comparison_judges_every_record():
+    """common/differing.py: a key missing on one side differs, unless the older record never held it."""
+    from smspace.common.differing import described, differing
+    from smspace.train.terms import grown
+
+    assert differing({"a": 1, "b": 2}, {"a": 1, "b": 3, "c": 4}) == ["b", "c"]
+    assert differing({"a": 1, "b": 2}, {"a": 1, "b": 3, "c": 4}, within={"a", "c"}) == ["c"]
+    assert differing({"a": 1, "b": 2}, {"a": 2, "b": 3}, ignore=("b",)) == ["a"]
+    assert described({"n": 3, "m": "x"}, {"n": 4, "m": "x"}, prefix="train.") == ["train.n 3 -> 4"]
+    assert described({"w": None}, {"w": [1]}) == ["w (unset) -> [1]"]
+    assert grown(100, 100, "never") is None and grown(100, 150, "never") == {"from_steps": 100, "to_steps": 150}
+    with pytest.raises(SmspaceError, match=r"^a run is never shortened$"):
+        grown(100, 50, "a run is never shortened")

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from smspace.common.differing import differing
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
@@ -21,7 +22,7 @@ from smspace.metrics import affine_projection
 from smspace.train.colours import position_colours
 from smspace.train.pages import record_files, recorded_files, refuse_inside
 from smspace.train.run_dir import RunView
-from smspace.train.terms import differing, terms
+from smspace.train.terms import terms
 
 MODE_COLOURS = {"MEM": "tab:red", "MM": "tab:green", "MME": "tab:blue"}
 METRICS = (("eval_loss", "loss"), ("d_topo", "D_topo"), ("d_metric", "D_metric"))

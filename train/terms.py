@@ -25,6 +25,7 @@ import json
 from dataclasses import replace
 from typing import Any
 
+from smspace.common.differing import differing
 from smspace.common.errors import SmspaceError
 from smspace.common.plugins import changes
 from smspace.train.config import TrainConfig
@@ -58,9 +59,12 @@ def check_one_ensemble(cfgs: list[TrainConfig]) -> None:
             raise SmspaceError(f"runs of one ensemble must share {', '.join(diff)}")
 
 
-def differing(a: dict[str, Any], b: dict[str, Any], ignore: tuple[str, ...] = ()) -> list[str]:
-    """The keys whose values differ (a key missing on one side differs)."""
-    return sorted(k for k in a.keys() | b.keys() if k not in ignore and a.get(k) != b.get(k))
+def grown(recorded_steps: int, steps: int, shortened: str) -> dict[str, int] | None:
+    """Rule 2, for a run and a study alike: the extension from the recorded length to `steps` (None:
+    the same length); `shortened`, the refusal in the caller's words, when `steps` is fewer."""
+    if steps < recorded_steps:
+        raise SmspaceError(shortened)
+    return None if steps == recorded_steps else {"from_steps": recorded_steps, "to_steps": steps}
 
 
 def schedule(cfg: TrainConfig) -> str:
@@ -75,16 +79,16 @@ def resumed(recorded: TrainConfig, where: str, steps: int | None, world_size: in
             f"{where} was trained on {recorded.world_size} process(es); resume it on as many "
             f"(--nproc {recorded.world_size}, or torchrun --nproc-per-node {recorded.world_size}), not {world_size}"
         )
-    if steps is None or steps == recorded.steps:
+    if steps is None:
         return recorded, None
-    if steps < recorded.steps:
-        raise SmspaceError(
-            f"--steps {steps} is fewer than the {recorded.steps} steps of {where}: a run is never shortened "
-            f"(its {schedule(recorded)}); train a new run with --steps {steps}"
-        )
-    extended = replace(
-        recorded, steps=steps, extensions=[*recorded.extensions, {"from_steps": recorded.steps, "to_steps": steps}]
-    )
+    extension = grown(
+        recorded.steps, steps,
+        f"--steps {steps} is fewer than the {recorded.steps} steps of {where}: a run is never shortened "
+        f"(its {schedule(recorded)}); train a new run with --steps {steps}",
+    )  # fmt: skip
+    if extension is None:
+        return recorded, None
+    extended = replace(recorded, steps=steps, extensions=[*recorded.extensions, extension])
     return (
         extended,
         f"extending {where} from {recorded.steps} to {steps} steps on its recorded schedule ({schedule(recorded)})",
@@ -115,11 +119,11 @@ def study_template(
         return requested, None
     asked = terms(requested)
     steps = asked["steps"]
-    if steps < recorded["steps"]:
-        raise SmspaceError(
-            f"--steps {steps} is fewer than the {recorded['steps']} steps of the study in {where}: "
-            "a study is never shortened; use another --out"
-        )
+    extension = grown(
+        recorded["steps"], steps,
+        f"--steps {steps} is fewer than the {recorded['steps']} steps of the study in {where}: "
+        "a study is never shortened; use another --out",
+    )  # fmt: skip
     if "lr_decay_steps" not in explicit:
         asked["lr_decay_steps"] = recorded["lr_decay_steps"]  # rule 3: the study keeps its schedule
     diff = differing(recorded, asked, ignore=("steps",))
@@ -129,7 +133,7 @@ def study_template(
             f"{where} holds a study with other terms: {shown}; keep them, use another --out, or pass --overwrite"
         )
     template = replace(requested, lr_decay_steps=asked["lr_decay_steps"])
-    if steps == recorded["steps"]:
+    if extension is None:
         return template, None
     return template, (
         f"extending the study in {where} from {recorded['steps']} to {steps} steps on its recorded schedule "
