@@ -10,7 +10,6 @@ entry and its code, the datasets' config hashes, and each session's wall time) a
 from __future__ import annotations
 
 import datetime
-import json
 import os
 import shutil
 import socket
@@ -35,13 +34,14 @@ from smspace.common.progress import duration
 from smspace.common.provenance import cpu, git_commit, version
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import dataset_id
+from smspace.lake.records import BENCH_RESULT, BENCH_SCORES, MalformedRecord
 from smspace.lake.store import Store, open_store, within
 from smspace.metrics.scores import scores_of
 
-BENCH = "bench.json"
-SCORES = "scores.json"
+BENCH = BENCH_RESULT.file
+SCORES = BENCH_SCORES.file
 LOCK = "bench.lock"  # held by the bench writing the result: a second one into the same folder is refused
-FORMAT = 2  # of scores.json: 2 carries evidence (bench/evidence.py); 1 did not, and is not shown
+FORMAT = BENCH_SCORES.writes  # of scores.json: 2 carries evidence (bench/evidence.py); 1 did not, and is not shown
 
 
 @dataclass(frozen=True)
@@ -153,8 +153,7 @@ def run_bench(
                 except BaseException:
                     _end(folder, session, time.monotonic() - clock, "failed")
                     raise
-                scores = {"format": FORMAT, "entry": entry.record(), "session": session, "rows": rows}
-                folder.put(SCORES, (json.dumps(scores, indent=1, allow_nan=False) + "\n").encode())
+                BENCH_SCORES.write(folder, {"entry": entry.record(), "session": session, "rows": rows})
                 _end(folder, session, time.monotonic() - clock, "ended")
             done.append(folder)
     return done
@@ -372,26 +371,6 @@ def _terms(suite: Suite, task: Task, entry: Entry, workers: int) -> dict[str, An
     return terms | ({"workers": workers} if entry.learns else {})
 
 
-MAX_RECORD = 4 << 20  # bytes of a bench.json or scores.json read: sessions are small
-
-
-def read_json(folder: Store, name: str) -> Any:
-    """A small JSON file of a result, bounded and plain (no NaN, not nested without end)."""
-    size = folder.size(name)
-    if size > MAX_RECORD:
-        raise SmspaceError(f"{folder.url}/{name} is {size} bytes; a result's {name} is at most {MAX_RECORD}")
-    try:
-        return json.loads(folder.read_bytes(name), parse_constant=_refuse_constant)
-    except RecursionError:
-        raise SmspaceError(f"{folder.url}/{name} is nested too deep to be a result") from None
-    except (ValueError, UnicodeDecodeError) as e:
-        raise SmspaceError(f"{folder.url}/{name} is not readable JSON ({e})") from None
-
-
-def _refuse_constant(word: str) -> None:
-    raise ValueError(f"{word} is not a JSON number")
-
-
 def _earlier(folder: Store, terms: dict[str, Any], overwrite: bool) -> dict[str, Any] | None:
     """The result already in `folder` (None: none, or --overwrite), refused if it was made on other
     terms (another code of the entry, another protocol): its sessions would not describe this
@@ -399,13 +378,11 @@ def _earlier(folder: Store, terms: dict[str, Any], overwrite: bool) -> dict[str,
     if not folder.exists(BENCH):
         return None
     try:
-        before = read_json(folder, BENCH)
-    except SmspaceError as e:
+        before = BENCH_RESULT.read(folder)
+    except MalformedRecord as e:  # not a result of any entry (another smspace's format is refused as it is)
         if overwrite:
             return None
         raise SmspaceError(f"{e}; --overwrite replaces it") from None
-    if not isinstance(before, dict):
-        before = {}
     was, now = before.get("entry"), terms["entry"]
     if not isinstance(was, dict) or (was.get("name"), was.get("params")) != (now["name"], now["params"]):
         shown = label_of(str(was.get("name")), was.get("params") or {}) if isinstance(was, dict) else "?"
@@ -448,7 +425,7 @@ def _begin(folder: Store, suite: Suite, task: Task, entry: Entry, workers: int, 
                **cpu()}  # fmt: skip
     record = terms | {"sessions": [*sessions, session]}
     folder.make()
-    folder.put(BENCH, (json.dumps(record, indent=1) + "\n").encode())
+    BENCH_RESULT.write(folder, record)
     return len(sessions)
 
 
@@ -461,6 +438,6 @@ def _forget_scores(folder: Store) -> None:
 
 def _end(folder: Store, session: int, wall_s: float, outcome: str) -> None:
     """The session's wall time and how it ended ("ended", "failed": its time counts either way)."""
-    record = read_json(folder, BENCH)
+    record = BENCH_RESULT.read(folder)
     record["sessions"][session] |= {"wall_s": wall_s, "outcome": outcome}
-    folder.put(BENCH, (json.dumps(record, indent=1) + "\n").encode())
+    BENCH_RESULT.write(folder, record)

@@ -17,12 +17,13 @@ from typing import Any
 from smspace.bench import evidence
 from smspace.bench.names import canonical_name, canonical_params, label_of, model_defaults
 from smspace.bench.representations import REPRESENTATIONS
-from smspace.bench.run import BENCH, FORMAT, read_json
+from smspace.bench.run import BENCH, FORMAT
 from smspace.bench.run import SCORES as SCORES_FILE
 from smspace.bench.suite import Task, datasets_hash, get_suite
 from smspace.common.differing import differing
 from smspace.common.errors import DatasetCorrupt, SmspaceError
 from smspace.lake.manifest import dataset_id
+from smspace.lake.records import BENCH_RESULT, BENCH_SCORES, Record
 from smspace.lake.store import Store
 from smspace.metrics.scores import SCORES, scores_of
 
@@ -51,8 +52,9 @@ class NotScored(SmspaceError):
 
 
 def verify(folder: Store, where: str) -> Result:
-    record = _dict(_read(folder, BENCH), f"{folder.url}/{BENCH}")
     bench = f"{folder.url}/{BENCH}"
+    record = _dict(_read(folder, BENCH_RESULT), bench)
+    BENCH_RESULT.format_of(record, bench)
     suite_name, version = _typed(record, "suite", str, bench), _typed(record, "version", int, bench)
     try:
         suite = get_suite(f"{suite_name}@{version}")
@@ -76,13 +78,14 @@ def verify(folder: Store, where: str) -> Result:
         said = "its sessions failed" if outcomes == {"failed"} else "its first session has not ended"
         raise NotScored(f"{folder.url} is left out: {said} (no scores yet)")
     scores_file = f"{folder.url}/{SCORES_FILE}"
-    raw = _read(folder, SCORES_FILE)
+    raw = _read(folder, BENCH_SCORES)
     scores = {"format": 1} if isinstance(raw, list) else _dict(raw, scores_file)  # format 1: a list of rows
-    if scores.get("format") != FORMAT:
+    if scores.get("format", 1) == 1:
         raise NotScored(
-            f"{folder.url} is left out: its {SCORES_FILE} is of format {scores.get('format', 1)!r}, not {FORMAT}, and "
+            f"{folder.url} is left out: its {SCORES_FILE} is of format 1, not {FORMAT}, and "
             "carries no evidence for its scores (measured by an older smspace); measure it again"
         )
+    BENCH_SCORES.format_of(scores, scores_file)
     if learns and not (isinstance(record.get("workers"), int) and not isinstance(record["workers"], bool)):
         raise SmspaceError(f"{bench}: a learned entry's result names the workers it was trained with")
     session = scores.get("session")
@@ -112,13 +115,13 @@ def _present(folder: Store, name: str) -> bool:
     return True
 
 
-def _read(folder: Store, name: str) -> Any:
+def _read(folder: Store, record: Record) -> Any:
     try:
-        return read_json(folder, name)
+        return record.load(folder)
     except FileNotFoundError:
-        raise SmspaceError(f"{folder.url}/{name} is missing") from None
+        raise SmspaceError(f"{folder.url}/{record.file} is missing") from None
     except OSError as e:  # a link, a FIFO, a folder: never followed nor opened
-        raise SmspaceError(f"{folder.url}/{name} cannot be read as a result's file ({e})") from None
+        raise SmspaceError(f"{folder.url}/{record.file} cannot be read as a result's file ({e})") from None
 
 
 def _dict(value: Any, where: str) -> dict[str, Any]:

@@ -43,11 +43,12 @@ from smspace.common.cli import EXECUTORS, MAX_ENSEMBLE, MAX_WORKERS
 from smspace.common.differing import described
 from smspace.common.errors import SmspaceError
 from smspace.lake.manifest import MAX_TRANSITIONS, MAX_WORLDS, SEED_MAX
+from smspace.lake.records import STUDY_FILE
 from smspace.lake.transitions import MODES
 from smspace.train.config import TrainConfig, finite_positive, flag_fields
 from smspace.train.terms import PER_RUN
 
-RECORD = "study-file.json"  # the resolved study, in its output folder
+RECORD = STUDY_FILE.file  # the resolved study, in its output folder
 SOURCE = "study-file.toml"  # the file as it was given
 FLAGS = "the flags of smtrain sweep"  # where a study given by flags came from
 SECTIONS = ("study", "train", "grid", "pairs", "run")

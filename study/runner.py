@@ -21,6 +21,7 @@ from smspace.common.progress import duration
 from smspace.datagen.generate import check_disk
 from smspace.datagen.setups import get_setup
 from smspace.lake.manifest import dataset_id
+from smspace.lake.records import STUDY_FILE, MalformedRecord
 from smspace.lake.store import Store, open_store
 from smspace.study import budget
 from smspace.study.budget import SetupProbe, makespan
@@ -117,7 +118,7 @@ def run_study(
     out.make()
     if request.source is not None:  # flags have no file: each sweep folder's study.json is their record
         out.put(SOURCE, request.source)
-        out.put(RECORD, (json.dumps(_resolved(study, combos, checked), indent=1) + "\n").encode())
+        STUDY_FILE.write(out, _resolved(study, combos, checked))
     runs, ensembles_todo = [], []
     for combo, (template, _) in zip(combos, checked, strict=True):
         got, todo = prepare(
@@ -166,11 +167,11 @@ def study_changes(request: StudyRequest, out: Store, overwrite: bool) -> list[st
     if overwrite or request.source is None:
         return []
     try:
-        recorded = json.loads(out.read_bytes(RECORD))
+        recorded = STUDY_FILE.read(out)
     except FileNotFoundError:
         return []
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SmspaceError(f"{out.url}/{RECORD} is unreadable ({type(e).__name__}); pass --overwrite") from None
+    except MalformedRecord as e:  # (another smspace's format is said as it is: --overwrite is no advice)
+        raise SmspaceError(f"{out.url}/{RECORD} is unreadable ({e.reason}); pass --overwrite") from None
     try:
         diff = changes(recorded, study.to_dict())
         before = None

@@ -27,6 +27,7 @@ from smspace.datagen.generate import generate
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.manifest import load_manifest
+from smspace.lake.records import SWEEP_STUDY, UnknownFormat
 from smspace.lake.store import StorageUnreachable, Store, open_store, within
 from smspace.study.monitor import StudyMonitor, monitored
 from smspace.train.config import TrainConfig, available_memory, memory_needed
@@ -41,8 +42,8 @@ from smspace.train.terms import HISTORY, STUDY, grown, study_template, terms
 def study_record(out: Store) -> dict[str, Any] | None:
     """The study.json of `out` ({"terms": …, "ensembles": [[run name, …], …]}), None if absent."""
     try:
-        record = json.loads(out.read_bytes(STUDY))
-        if not isinstance(record, dict) or not isinstance(record["terms"], dict):
+        record = SWEEP_STUDY.read(out)
+        if not isinstance(record["terms"], dict):
             raise TypeError("not a study record")
         groups = record.get("ensembles", [])
         if not isinstance(groups, list) or not all(
@@ -58,8 +59,8 @@ def study_record(out: Store) -> dict[str, Any] | None:
         return record
     except FileNotFoundError:
         return None
-    except StorageUnreachable:
-        raise  # not "unreadable": --overwrite would be the wrong advice
+    except (StorageUnreachable, UnknownFormat):
+        raise  # not "unreadable": --overwrite would be the wrong advice (for another version's record too)
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError, SmspaceError) as e:
         raise SmspaceError(
             f"{out.url}/{STUDY} is unreadable ({one_line(e, with_type=True)}); pass --overwrite to start anew"
@@ -233,7 +234,7 @@ def prepare(
 
 
 def _study_bytes(record: dict[str, Any]) -> bytes:
-    return (json.dumps(record, indent=1) + "\n").encode()
+    return SWEEP_STUDY.encode(record)
 
 
 def study_ensembles(out: Store, runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[RunDir]]:

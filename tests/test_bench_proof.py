@@ -236,11 +236,29 @@ def test_malformed_files_are_one_line_each(bench, tmp_path):
         (text.replace('"wall_s": ', '"wall_s": 1e999, "x": ', 1), "has wall_s inf"),
         ("[" * 200_000 + "]" * 200_000, "nested too deep"),
         ("{not json", "is not readable JSON"),
-        (" " * (5 << 20), "bytes; a result's scores.json is at most"),
+        (" " * (5 << 20), "bytes; a scores.json is at most"),
     ]:
         (folder / "scores.json").write_text(forged)
         line = one_line(board(copy, out=tmp_path / "b"))
         assert str(folder) in line and said in line, (said, line)
+
+
+def test_a_result_of_the_layout_before_formats_is_read_and_another_format_refused(bench, tmp_path):
+    """bench.json carried no format before lake/records.py: such a result gives the same table; a
+    bench.json or scores.json of a format this smspace does not know is one line naming it."""
+    assert board(bench / "out", out=tmp_path / "honest").returncode == 0
+    copy = copied(bench, tmp_path)
+    for found in copy.rglob("bench.json"):
+        assert json.loads(found.read_text())["format"] == 1
+        edit(found, lambda b: b.pop("format"))
+    done = board(copy, out=tmp_path / "old")
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "old/leaderboard.md").read_text() == (tmp_path / "honest/leaderboard.md").read_text()
+    for name, value in [("bench.json", 99), ("bench.json", True), ("scores.json", 3), ("scores.json", "2")]:
+        case = copied(bench, tmp_path / f"{name}-{value}")
+        edit(case / SHALLOW / name, lambda r, v=value: r.update(format=v))
+        line = one_line(board(case, out=tmp_path / "b"))
+        assert f"{case / SHALLOW / name} is of format {value!r}; this smspace reads {name} of format" in line, line
 
 
 def test_a_result_whose_scores_a_killed_or_failed_session_did_not_write_is_refused(bench, tmp_path):

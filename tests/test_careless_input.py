@@ -236,6 +236,9 @@ def test_a_config_no_run_could_have_names_its_file(tmp_path):
     cfg = json.loads((run / "config.json").read_text())
     (run / "config.json").write_text(json.dumps(cfg | {"lr_start": float("nan")}))
     line = one_error(run_cmd("smtrain", "fit", "--resume", run, "--steps", 40))
+    assert f"{run}/config.json is not readable JSON (NaN is not a JSON number)" in line, line  # lake/records.py
+    (run / "config.json").write_text(json.dumps(cfg | {"lr_start": -1.0}))
+    line = one_error(run_cmd("smtrain", "fit", "--resume", run, "--steps", 40))
     assert f"{run}/config.json holds a config no run could have" in line, line
 
 

@@ -7,7 +7,6 @@ and a metrics table that resume trims back to that checkpoint.
 from __future__ import annotations
 
 import io
-import json
 import os
 import pickle
 import re
@@ -24,17 +23,18 @@ from smspace.common import provenance
 from smspace.common.errors import SmspaceError
 from smspace.common.locks import HeldLock
 from smspace.lake import parquet
+from smspace.lake.records import RUN_CONFIG, RUN_STATUS
 from smspace.lake.store import StorageUnreachable, Store, WriteConflict, open_store
 from smspace.train import tensorboard
 from smspace.train.config import TrainConfig
 
-CONFIG = "config.json"
+CONFIG = RUN_CONFIG.file
 METRICS = "metrics.parquet"
 EMBEDDINGS = "embeddings"
 SUBFOLDERS = (EMBEDDINGS, tensorboard.FOLDER)
 CHECKPOINT = "checkpoint.pt"
 PREVIOUS = "checkpoint-previous.pt"  # members of an ensemble: the evaluation before, to roll back to
-STATUS = "status.json"
+STATUS = RUN_STATUS.file
 LOCK = ".lock"  # held (flock) by the process training the run
 RUN_ID = "run_id"  # in config.json, the checkpoint, the metrics' and embeddings' metadata, status.json
 
@@ -114,10 +114,12 @@ class RunView:
     @property
     def config(self) -> TrainConfig:
         try:
-            return TrainConfig.from_dict(json.loads(self._read(CONFIG)))
+            raw = RUN_CONFIG.decode(self._read(CONFIG), f"{self.url}/{CONFIG}")
         except FileNotFoundError:
             raise SmspaceError(f"{self.url} is not a run folder (no {CONFIG})") from None
-        except (json.JSONDecodeError, UnicodeDecodeError, TypeError, AttributeError) as e:
+        try:
+            return TrainConfig.from_dict(raw)
+        except (TypeError, AttributeError) as e:
             raise SmspaceError(f"{self.url}/{CONFIG} is unreadable ({type(e).__name__})") from e
         except SmspaceError as e:  # a value no flag would take (a NaN lr_start): name the file
             raise SmspaceError(f"{self.url}/{CONFIG} holds a config no run could have: {e}") from e
@@ -125,19 +127,16 @@ class RunView:
     def recorded_keys(self) -> set[str]:
         """The config fields config.json holds (an older smspace recorded fewer)."""
         try:
-            raw = json.loads(self._read(CONFIG))
-        except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
+            return set(RUN_CONFIG.decode(self._read(CONFIG), f"{self.url}/{CONFIG}"))
+        except (FileNotFoundError, SmspaceError):
             return set()
-        return set(raw) if isinstance(raw, dict) else set()
 
     def status(self) -> dict[str, Any]:
         """The recorded state; "running" becomes "stale" when its process is gone from this host."""
         try:
-            status = json.loads(self._read(STATUS))
+            status = RUN_STATUS.decode(self._read(STATUS), f"{self.url}/{STATUS}")
         except FileNotFoundError:
             return {"state": "created", "step": 0, "message": ""}
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise SmspaceError(f"{self.url}/{STATUS} is unreadable ({type(e).__name__})") from e
         fields = {"state": str, "step": int, "message": str}
         if not isinstance(status, dict) or not all(isinstance(status.get(k), t) for k, t in fields.items()):
             raise SmspaceError(f"{self.url}/{STATUS} is unreadable (state, step and message must be recorded)")
@@ -376,7 +375,7 @@ class RunDir(RunView):
         status = {"state": state, "step": step, "message": message, "run_id": self.run_id}
         if state == "running":
             status |= {"pid": os.getpid(), "host": socket.gethostname()}
-        self._write(STATUS, json.dumps(status).encode())
+        self._write(STATUS, RUN_STATUS.encode(status))
 
     # -- metrics and embeddings -------------------------------------------------------------
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
@@ -470,7 +469,7 @@ class RunDir(RunView):
 
 
 def _config_bytes(cfg: TrainConfig) -> bytes:
-    return (json.dumps(cfg.to_dict(), indent=1) + "\n").encode()
+    return RUN_CONFIG.encode(cfg.to_dict())
 
 
 def _npy(data: bytes) -> np.ndarray:

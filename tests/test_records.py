@@ -1,0 +1,81 @@
+"""lake/records.py: every JSON record smspace writes carries its format and is read through one
+module. Records of the layout before formats (no "format" key) are still read; another format, or
+a record that is not one, is one line naming the file."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from smspace.lake.records import FORMAT, RECORDS, MalformedRecord, UnknownFormat
+
+from .conftest import failed_in_one_line, run_cmd
+
+STUDY = """
+[study]
+setup = "grid"
+modes = ["MM"]
+worlds = 1
+seed = 3
+transitions = 3000
+
+[train]
+steps = 40
+eval_every = 20
+batch_size = 50
+n_h = 3
+"""
+
+
+@pytest.mark.parametrize("record", RECORDS, ids=lambda r: r.file)
+def test_every_record_carries_its_format_and_refuses_what_it_cannot_read(record):
+    body = {"steps": 40, "name": "x"}
+    data = record.encode(body)
+    assert json.loads(data)[FORMAT] == record.writes and record.decode(data, "here") == body
+    if 1 in record.reads:  # written before formats were recorded
+        assert record.decode(json.dumps(body).encode(), "here") == body
+    else:
+        with pytest.raises(UnknownFormat, match=r"^here is of format 1; "):
+            record.decode(json.dumps(body).encode(), "here")
+    for found in (99, True, "1", None):
+        with pytest.raises(UnknownFormat, match=rf"^here is of format {found!r}; this smspace reads {record.file}"):
+            record.decode(json.dumps({FORMAT: found, **body}).encode(), "here")
+    for data, said in [(b"[1]", "is not a JSON object"), (b'{"a": NaN}', "is not readable JSON (NaN is not"),
+                       (b"{not", "is not readable JSON"), (b"[" * 100_000, "is nested too deep"),
+                       (b" " * (record.max_bytes + 1), f"is {record.max_bytes + 1} bytes; a ")]:  # fmt: skip
+        with pytest.raises(MalformedRecord, match="^" + re.escape(f"here {said}")):
+            record.decode(data, "here")
+    with pytest.raises(ValueError):
+        record.encode({FORMAT: 7})  # a writer never sets the format itself
+
+
+def test_runs_and_studies_of_the_layout_before_formats_are_read_and_another_format_refused(tmp_path):
+    study, out, lake = tmp_path / "s.toml", tmp_path / "runs", tmp_path / "lake"
+    study.write_text(STUDY)
+    first = run_cmd("smtrain", "sweep", study, "--out", out, "--lake", lake, "--workers", 1, timeout=600)
+    assert first.returncode == 0, first.stderr
+    run = next(p.parent for p in out.glob("*/config.json"))
+    records = [run / "config.json", run / "status.json", out / "study.json", out / "study-file.json"]
+    for path in records:
+        raw = json.loads(path.read_text())
+        assert raw.pop(FORMAT) == 1, path
+        path.write_text(json.dumps(raw, indent=1))  # as the smspace before formats wrote it
+    again = run_cmd("smtrain", "sweep", study, "--out", out, "--lake", lake, "--workers", 1, timeout=600)
+    assert again.returncode == 0 and "changed" not in again.stderr, again.stderr
+    listed = run_cmd("smtrain", "ls", "--runs", out)
+    assert listed.returncode == 0 and run.name in listed.stdout and "finished" in listed.stdout, listed
+    longer = run_cmd("smtrain", "fit", "--resume", run, "--steps", 60, timeout=600)
+    assert longer.returncode == 0, longer.stderr
+    assert json.loads((run / "config.json").read_text())[FORMAT] == 1  # rewritten in today's format
+    for path in records:
+        raw = json.loads(path.read_text())
+        path.write_text(json.dumps(raw | {FORMAT: 99}))
+        if path.name in ("config.json", "status.json"):
+            said = run_cmd("smtrain", "info", run)
+        else:
+            said = run_cmd("smtrain", "sweep", study, "--out", out, "--lake", lake, "--workers", 1)
+        line = failed_in_one_line(said, "smtrain")
+        assert f"{path} is of format 99; this smspace reads {path.name} of format 1" in line, line
+        path.write_text(json.dumps(raw))
