@@ -25,13 +25,12 @@ from smspace.common.main_guard import refuse_unguarded
 from smspace.datagen.executors import ExecutorOptions, open_part_writers
 from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, verify_part
 from smspace.datagen.setups import get_setup, setup_plugin
+from smspace.lake.bounds import SHARD_SIZE, TRANSITIONS
 from smspace.lake.catalog import check_lake, make_lake, rebuild_catalog
 from smspace.lake.integrity import file_problem
 from smspace.lake.manifest import (
     GENERATION,
     MANIFEST,
-    MAX_SHARD_SIZE,
-    MAX_TRANSITIONS,
     REGULAR_FILE,
     GenConfig,
     Manifest,
@@ -236,14 +235,8 @@ def commit_dataset(folder: Store, cfg: GenConfig, records: dict[int, PartRecord]
 
 
 def _check_request(transitions: int, shard_size: int) -> None:
-    if transitions <= 0:
-        raise SmspaceError(f"--transitions must be positive, got {transitions}")
-    if shard_size <= 0:
-        raise SmspaceError(f"--shard-size must be positive, got {shard_size}")
-    if shard_size > MAX_SHARD_SIZE:
-        raise SmspaceError(f"--shard-size {shard_size} is more than a worker holds in memory ({MAX_SHARD_SIZE})")
-    if transitions > MAX_TRANSITIONS:
-        raise SmspaceError(f"--transitions {transitions} is more than a dataset may hold ({MAX_TRANSITIONS})")
+    TRANSITIONS.coerce(transitions, "--transitions")
+    SHARD_SIZE.coerce(shard_size, "--shard-size")
 
 
 def check_disk(

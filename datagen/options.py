@@ -5,6 +5,7 @@ whether the flag is required."""
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 
 import click
@@ -12,7 +13,7 @@ import click
 from smspace.common.cli import MAX_WORKERS
 from smspace.common.completion import comma_list_completer
 from smspace.datagen.setups import SETUPS, setup_names
-from smspace.lake.manifest import MAX_WORLDS, SEED_MAX
+from smspace.lake.bounds import SEED, TRANSITIONS, WORLDS, Bounded, world_seeds
 from smspace.lake.transitions import MODES
 
 SETUP_HELP = "; ".join(f"{s.name}: {s.description}" for s in SETUPS.values()) + "; or a setup a plugin registers"
@@ -27,20 +28,44 @@ def modes_option(flag: str, dest: str, **given) -> Callable:
     return click.option(flag, dest, shell_complete=comma_list_completer(MODES), help=help_text, **given)
 
 
+class BoundedInt(click.ParamType):
+    """A flag read by the bounds a study file and the API are read by (lake/bounds.py), so the
+    three refuse one number in the same words."""
+
+    name = "integer"
+
+    def __init__(self, bounds: Bounded):
+        self.bounds = bounds
+
+    def __repr__(self) -> str:
+        return f"BoundedInt({self.bounds.low}..{self.bounds.high})"
+
+    def convert(self, value, param, ctx) -> int:
+        if isinstance(value, str):
+            with contextlib.suppress(ValueError):  # not a number: said by the bounds, as a file's string is
+                value = int(value)
+        problem = self.bounds.problem(value)
+        if problem is not None:
+            flag = param.opts[0] if param is not None else self.name
+            raise click.UsageError(f"{flag} {problem}", ctx)  # "--transitions must be positive, got 0"
+        return value
+
+
 def transitions_option() -> Callable:
-    """Bounds are the library's own (datagen.generate refuses 0 the same way for the API)."""
-    return click.option("--transitions", type=int, default=None, help="Transitions per dataset [setup default].")
+    return click.option(
+        "--transitions", type=BoundedInt(TRANSITIONS), default=None, help="Transitions per dataset [setup default]."
+    )
 
 
 def worlds_option(default: int) -> Callable:
     return click.option(
-        "--worlds", type=click.IntRange(1, MAX_WORLDS), default=default, show_default=True,
+        "--worlds", type=BoundedInt(WORLDS), default=default, show_default=True,
         help="Number of worlds; their seeds are SEED, SEED+1, …",
     )  # fmt: skip
 
 
 def first_seed_option(dest: str, help: str = "Seed of the first world.") -> Callable:
-    return click.option("--seed", dest, type=click.IntRange(0, SEED_MAX), default=0, show_default=True, help=help)
+    return click.option("--seed", dest, type=BoundedInt(SEED), default=0, show_default=True, help=help)
 
 
 def generator_workers_option(flag: str, dest: str) -> Callable:
@@ -52,7 +77,4 @@ def generator_workers_option(flag: str, dest: str) -> Callable:
 
 def check_seed_range(seed: int, worlds: int) -> None:
     """The last world's seed must still be a seed (both commands, before anything is written)."""
-    from smspace.common.errors import SmspaceError
-
-    if seed + worlds - 1 > SEED_MAX:
-        raise SmspaceError(f"--seed {seed} with --worlds {worlds} passes the largest world seed, {SEED_MAX}")
+    world_seeds(seed, worlds, "--seed", "--worlds")

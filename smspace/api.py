@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import pyarrow as pa
 
+from smspace.lake.bounds import world_seeds
 from smspace.lake.catalog import read_catalog
 from smspace.lake.dataset import Dataset, resolve_dataset
 from smspace.lake.dataset import lake_store as _open_store
@@ -80,7 +81,8 @@ def generate(
     store = lake.store if isinstance(lake, Lake) else _open_store(lake)  # generation checks it
     mode_list = parse_modes(modes) if isinstance(modes, str) else list(modes)
     n = spec.default_transitions if transitions is None else transitions
-    results = run(store, setup, mode_list, range(seed, seed + worlds), n, spec.default_shard_size, workers=workers)
+    seeds = world_seeds(seed, worlds)
+    results = run(store, setup, mode_list, seeds, n, spec.default_shard_size, workers=workers)
     return [Dataset(store.child(manifest.dataset_id)) for manifest, _ in results]
 
 

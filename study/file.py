@@ -42,7 +42,7 @@ from typing import Any
 from smspace.common.cli import EXECUTORS, MAX_ENSEMBLE, MAX_WORKERS
 from smspace.common.differing import described
 from smspace.common.errors import SmspaceError
-from smspace.lake.manifest import MAX_TRANSITIONS, MAX_WORLDS, SEED_MAX
+from smspace.lake.bounds import SEED, TRANSITIONS, WORLDS, Bounded, world_seeds_problem
 from smspace.lake.records import STUDY_FILE
 from smspace.lake.transitions import MODES
 from smspace.train.config import TrainConfig, finite_positive, flag_fields
@@ -290,13 +290,13 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}", name):  # it names a folder: runs/<name>
         raise bad("study.name", f"{name!r} must be a plain folder name (letters, digits, '.', '_', '-'; no '/')")
     modes = _modes(study.get("modes", list(MODES)), bad)
-    worlds = _integer(study.get("worlds", 1), bad, "study.worlds", 1, MAX_WORLDS)
-    seed = _integer(study.get("seed", 0), bad, "study.seed", 0, SEED_MAX)
-    if seed + worlds - 1 > SEED_MAX:  # world seeds seed .. seed + worlds - 1 name datasets
-        raise bad("study.seed", f"seed {seed} + {worlds} worlds passes the largest seed {SEED_MAX}")
+    worlds = _bounded(WORLDS, study.get("worlds", 1), bad, "study.worlds")
+    seed = _bounded(SEED, study.get("seed", 0), bad, "study.seed")
+    if (problem := world_seeds_problem(seed, worlds)) is not None:  # world seeds seed .. seed + worlds - 1
+        raise bad("study.seed", problem)
     transitions = study.get("transitions")
     if transitions is not None:
-        transitions = _integer(transitions, bad, "study.transitions", 1, MAX_TRANSITIONS)
+        transitions = _bounded(TRANSITIONS, transitions, bad, "study.transitions")
 
     fields_by_name = {f.name: f for f in flag_fields() if f.name not in NOT_TRAINABLE}
     train = {k: _train_value(fields_by_name, k, v, bad, f"train.{k}") for k, v in raw.get("train", {}).items()}
@@ -360,6 +360,12 @@ def _check_setup(setup: str, bad, key: str) -> None:
 def _string(value: Any, bad, key: str) -> str:
     if not isinstance(value, str) or not value:
         raise bad(key, f"expected a non-empty string, got {value!r}")
+    return value
+
+
+def _bounded(bounds: Bounded, value: Any, bad, key: str) -> int:
+    if (problem := bounds.problem(value)) is not None:
+        raise bad(key, problem)
     return value
 
 

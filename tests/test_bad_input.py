@@ -238,3 +238,32 @@ def test_a_generation_bound_holds_in_smgen_and_in_sweep(tmp_path, gen_args, swee
         assert needle in result.output, result.output
     assert not lake.exists() or not any(lake.iterdir())
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "said"),
+    [
+        ("transitions", 0, "must be positive, got 0"),
+        ("transitions", 2**41, f"{2**41} is more than a dataset may hold ({2**40})"),
+        ("worlds", 0, "must be positive, got 0"),
+        ("worlds", 100_001, "100001 is more than one command plans"),
+        ("seed", -1, "must be at least 0, got -1"),
+        ("transitions", "many", "must be an integer, got 'many'"),
+    ],
+)
+def test_a_bad_dataset_number_is_refused_in_the_same_words_by_a_flag_a_study_file_and_the_api(
+    tmp_path, key, value, said
+):
+    """lake/bounds.py: one declaration of each number a dataset request holds, one wording."""
+    import smspace
+
+    lake = tmp_path / "lake"
+    flag = smgen("generate", "--setup", "grid", "--mode", "MM", f"--{key}", str(value), "--lake", str(lake))
+    assert f"smgen: error: --{key} {said}" in one_error_line(flag)
+    study = tmp_path / "s.toml"
+    study.write_text(f'[study]\nsetup = "grid"\nmodes = ["MM"]\n{key} = {json.dumps(value)}\n')
+    with pytest.raises(SmspaceError, match=f"study.{key}: {said[:12]}"):
+        smspace.dry_run(study, out=tmp_path / "runs", lake=lake)
+    with pytest.raises(SmspaceError, match=f"^{key} {said[:12]}"):
+        smspace.generate("grid", "MM", lake=lake, **{key: value})
+    assert not lake.exists() or not any(lake.glob("grid-*"))

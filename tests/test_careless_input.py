@@ -61,7 +61,7 @@ def test_a_study_this_machine_cannot_run_is_refused_before_anything_is_written(t
     [
         ("[grid]\nn_h = {a}\nlr_start = {b}\n", "combinations; at most 1000"),
         ("[run]\nworkers = 1000000\n", "run.workers"),
-        ("[study]\nseed = 9223372036854775807\nworlds = 2\n", "passes the largest seed"),
+        ("[study]\nseed = 9223372036854775807\nworlds = 2\n", "passes the largest world seed"),
         ("[study]\ntransitions = 2199023255553\n", "study.transitions"),
     ],
 )
