@@ -45,6 +45,12 @@ def run_cmd(*args: str, timeout: float = 120, **kwargs) -> subprocess.CompletedP
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, **kwargs)
 
 
+def short_fit(dataset: str, lake: Path | str, out: Path | str, *extra: object, timeout: float = 300):
+    """`smtrain fit` of one dataset as a real process: 40 steps, evaluated at 0, 20 and 40."""
+    return run_cmd("smtrain", "fit", dataset, "--lake", lake, "--out", out, "--steps", 40, "--eval-every", 20,
+                   *extra, timeout=timeout)  # fmt: skip
+
+
 def failed_in_one_line(result, prog: str | None = None, *, code: int | None = None, alone: bool = False) -> str:
     """The command failed (exit `code`, or any non-zero) with exactly one error line, its last,
     and no traceback; `alone`: nothing else was printed either (progress lines are not errors).

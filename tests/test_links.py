@@ -6,18 +6,18 @@ from __future__ import annotations
 
 import shutil
 
-from .conftest import SAMPLES, failed_in_one_line, run_cmd
+from .conftest import SAMPLES, failed_in_one_line, run_cmd, short_fit
 
 one_error = failed_in_one_line
 
 
-def fit(*args):
-    return run_cmd("smtrain", "fit", "grid-seed0-MM", "--lake", SAMPLES, "--steps", 40, "--eval-every", 20, *args)
+def fit(out):
+    return short_fit("grid-seed0-MM", SAMPLES, out)
 
 
 def test_a_lock_that_is_a_link_is_refused_and_its_target_untouched(tmp_path):
     run, victim = tmp_path / "run", tmp_path / "victim.txt"
-    assert fit("--out", run).returncode == 0
+    assert fit(run).returncode == 0
     victim.write_text("precious")
     (run / ".lock").unlink()
     (run / ".lock").symlink_to(victim)
@@ -38,7 +38,7 @@ def test_the_lake_lock_of_a_dataset_is_never_followed(tmp_path):
 
 def test_a_run_s_sub_folder_that_is_a_link_is_never_written_through(tmp_path):
     run, elsewhere = tmp_path / "run", tmp_path / "elsewhere"
-    assert fit("--out", run).returncode == 0
+    assert fit(run).returncode == 0
     elsewhere.mkdir()
     shutil.rmtree(run / "tensorboard")
     (run / "tensorboard").symlink_to(elsewhere)

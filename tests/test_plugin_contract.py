@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import SAMPLES, failed_in_one_line, run_cmd
+from .conftest import SAMPLES, failed_in_one_line, run_cmd, short_fit
 
 PLUGINS = Path(__file__).parent / "plugins"
 
@@ -49,8 +49,7 @@ def tiny_lake(tmp_path_factory) -> Path:
 
 
 def fit(lake: Path, out: Path, *extra):
-    return run_cmd("smtrain", "fit", "tiny-seed0-MM", "--lake", lake, "--out", out, "--steps", 40,
-                   "--eval-every", 20, *extra)  # fmt: skip
+    return short_fit("tiny-seed0-MM", lake, out, *extra)
 
 
 @pytest.mark.parametrize(

@@ -4,20 +4,16 @@ in one line before anything is written."""
 from __future__ import annotations
 
 import json
+from functools import partial
 
 import pytest
 
 from smspace.common.errors import SmspaceError
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES, smtrain
+from .conftest import SAMPLES, failed_in_one_line, smtrain
 
-
-def error_line(result) -> str:
-    assert result.exit_code == 2, (result.stdout, result.stderr)
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("smtrain: error: "), result.stderr
-    return lines[0]
+error_line = partial(failed_in_one_line, prog="smtrain", code=2, alone=True)
 
 
 def config_of(folder) -> dict:
