@@ -31,6 +31,7 @@ __all__ = [
     "affine_projection",
     "define_study",
     "dry_run",
+    "find_runs",
     "fit",
     "generate",
     "load_dataset",
@@ -65,6 +66,7 @@ _WHERE = {
     "run_study": "smspace.api",
     "dry_run": "smspace.api",
     "define_study": "smspace.api",
+    "find_runs": "smspace.api",
     "report": "smspace.api",
     "fit": "smspace.api",
 }

@@ -10,11 +10,12 @@ from typing import TYPE_CHECKING, Any
 
 import pyarrow as pa
 
+from smspace.common.errors import SmspaceError
 from smspace.lake.bounds import world_seeds
 from smspace.lake.catalog import read_catalog
 from smspace.lake.dataset import Dataset, resolve_dataset
 from smspace.lake.dataset import lake_store as _open_store
-from smspace.lake.store import Store
+from smspace.lake.store import Store, open_store
 from smspace.lake.transitions import parse_modes
 from smspace.study.file import StudyRequest
 from smspace.train.run_dir import RunView
@@ -141,6 +142,20 @@ def resume(run: str | Path | RunView, steps: int | None = None, sinks: Sequence[
 def open_run(where: str | Path | RunView) -> Run:
     """An existing run folder (a folder or an fsspec URL), to read its config, metrics and h."""
     return Run.open(where.store if isinstance(where, RunView) else where)
+
+
+@python_errors
+def find_runs(where: str | Path | Store) -> list[Run]:
+    """Every run folder at or below `where` (a folder or an fsspec URL): a lone run, a sweep, a
+    study with its grid, a bench's results; found by the scanner `smtrain ls`, `report` and
+    `leaderboard` use (lake/scan.py), in path order."""
+    from smspace.lake.scan import descend, folders_holding
+    from smspace.train.run_dir import CONFIG
+
+    store = where if isinstance(where, Store) else open_store(where)
+    if store.is_file():
+        raise SmspaceError(f"{store.url} is a file, not a folder of runs")
+    return [Run.open(descend(store, name)) for name in folders_holding(store, CONFIG)]
 
 
 @python_errors

@@ -30,6 +30,12 @@ def test_the_examples_of_docs_api_run(tmp_path, monkeypatch):
     assert sorted(r.config.n_h for r in namespace["study_runs"]) == [2, 3]
     assert (tmp_path / "runs" / "tiny" / "n_h=2" / "grid-seed7-MM-nh2-seed7" / "tensorboard").is_dir()
     assert namespace["log"].seen == [0, 50, 100, "finished at 100"]
+    assert [r.url for r in namespace["same_runs"]] == [r.url for r in namespace["study_runs"]]  # define_study
+    assert [r.url.rsplit("/", 2)[-2] for r in namespace["found"]] == ["n_h=2", "n_h=3"]
+    assert [r.url for r in smspace.find_runs("runs")] == sorted(r.url for r in smspace.find_runs("runs"))
+    assert len(smspace.find_runs("runs")) > 2 and smspace.find_runs(tmp_path / "data") == []
+    with pytest.raises(smspace.SmspaceError, match="is a file, not a folder of runs"):
+        smspace.find_runs(namespace["study_runs"][0].url + "/config.json")
 
 
 def test_what_is_public_is_named_and_loads():
