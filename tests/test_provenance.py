@@ -53,6 +53,7 @@ def test_report_is_one_page_of_a_study_folder(tmp_path):
     page = (out / "report.md").read_text()
     assert "## grid-nh3: grid, N_h = 3, 1 world(s), 60 steps" in page
     assert "| MM | 1 | 60 |" in page and "| MME | 1 | 60 |" in page
+    assert "| mode | runs | step | loss | D_topo ↓ | D_metric ↓ |" in page  # directions from metrics/scores.py
     assert f"- torch: {torch.__version__}" in page and "- datasets made with: python" in page
     images = [line[line.index("(") + 1 : -1] for line in page.splitlines() if line.startswith("![")]
     assert sorted(images) == ["curves.png", "projection_MM.png", "projection_MME.png"]

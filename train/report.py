@@ -19,13 +19,15 @@ from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
 from smspace.lake.store import StorageUnreachable
 from smspace.metrics import affine_projection
+from smspace.metrics.scores import SCORES
 from smspace.train.colours import position_colours
 from smspace.train.pages import record_files, recorded_files, refuse_inside
 from smspace.train.run_dir import RunView
 from smspace.train.terms import terms
 
 MODE_COLOURS = {"MEM": "tab:red", "MM": "tab:green", "MME": "tab:blue"}
-METRICS = (("eval_loss", "loss"), ("d_topo", "D_topo"), ("d_metric", "D_metric"))
+# what a report shows of each evaluation: the loss, and the scores metrics/scores.py declares
+METRICS = (("eval_loss", "loss"), *((name, SCORES[name].title) for name in ("d_topo", "d_metric")))
 
 
 @dataclass
@@ -450,6 +452,12 @@ def final_table(study: Study, variables: Sequence[str] = ()) -> list[dict[str, A
     return table
 
 
+def _metric_columns() -> str:
+    """The metrics' column titles, each with the direction its score declares (D_topo ↓), as the
+    leaderboard's headings have them."""
+    return " | ".join(f"{title} {SCORES[key].arrow}" if key in SCORES else title for key, title in METRICS)
+
+
 def _mean_std(mean: float, std: float, runs: int) -> str:
     """One run has no spread to show; "± 0" would claim one."""
     return f"{mean:.3g}" if runs == 1 else f"{mean:.3g} ± {std:.2g}"
@@ -471,7 +479,7 @@ def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path, v
                 writer.writerow([r.name, r.run.url, study.name, r.setup, r.n_h, *grid, r.mode, study.final_step, *at])
     extra = "".join(f" {v} |" for v in variables)
     lines = [
-        f"| study | setup | N_h | mode | runs | step |{extra} loss | D_topo | D_metric |",
+        f"| study | setup | N_h | mode | runs | step |{extra} {_metric_columns()} |",
         "|---|---|---|---|---|---|" + "---|" * len(variables) + "---|---|---|",
     ]
     for row in table:
@@ -575,14 +583,14 @@ def markdown_report(
             lines += [f"![{figure.stem}]({figure.name})", ""]
     for study in studies:
         lines += [f"## {study.name}: {study.label}", ""]
-        lines += ["| mode | runs | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|"]
+        lines += [f"| mode | runs | step | {_metric_columns()} |", "|---|---|---|---|---|---|"]
         for row in (r for r in table if r["study"] == study.name):
             cells = [_mean_std(row[f"{k}_mean"], row[f"{k}_std"], row["runs"]) for k, _ in METRICS]
             lines.append(f"| {row['mode']} | {row['runs']} | {row['step']} | " + " | ".join(cells) + " |")
         lines += ["", "Mean ± standard deviation over the runs (one world each) at the last step all reached.", ""]
         for figure in figures[study.name]:
             lines += [f"![{figure.stem}]({figure.name})", ""]
-        lines += ["### Runs", "", "| run | mode | step | loss | D_topo | D_metric |", "|---|---|---|---|---|---|"]
+        lines += ["### Runs", "", f"| run | mode | step | {_metric_columns()} |", "|---|---|---|---|---|---|"]
         for r in study.runs:
             at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
             lines.append(f"| {r.name} | {r.mode} | {study.final_step} | " + " | ".join(f"{v:.3g}" for v in at) + " |")
