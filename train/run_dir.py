@@ -21,11 +21,11 @@ import pyarrow as pa
 
 from smspace.common import provenance
 from smspace.common.errors import SmspaceError
-from smspace.common.locks import HeldLock
 from smspace.lake import parquet
 from smspace.lake.records import RUN_CONFIG, RUN_STATUS
-from smspace.lake.store import StorageUnreachable, Store, WriteConflict, open_store
+from smspace.lake.store import StorageUnreachable, Store, open_store
 from smspace.train import tensorboard
+from smspace.train.claim import LOCK, Claim
 from smspace.train.config import TrainConfig
 
 CONFIG = RUN_CONFIG.file
@@ -35,7 +35,6 @@ SUBFOLDERS = (EMBEDDINGS, tensorboard.FOLDER)
 CHECKPOINT = "checkpoint.pt"
 PREVIOUS = "checkpoint-previous.pt"  # members of an ensemble: the evaluation before, to roll back to
 STATUS = RUN_STATUS.file
-LOCK = ".lock"  # held (flock) by the process training the run
 RUN_ID = "run_id"  # in config.json, the checkpoint, the metrics' and embeddings' metadata, status.json
 
 METRICS_SCHEMA = pa.schema(
@@ -250,56 +249,24 @@ class RunDir(RunView):
 
     def __init__(self, where: Path | str | Store):
         super().__init__(where)
-        self._lock: HeldLock | None = None
-        # while this process trains the run: the version of each file it last saw or wrote (None:
-        # absent), so that on object storage it writes over its own versions only (lake/store.py)
-        self._versions: dict[str, str | None] | None = None
-        self._lost = False  # another process took the folder over: this one writes nothing more
+        self._claim = Claim(self.store, SUBFOLDERS)  # who writes, and over which versions: train/claim.py
         self._last_checkpoint: bytes | None = None  # the bytes this process last wrote or resumed from
         self._terms: dict[str, Any] | None = None  # the config this process trains by, once read or written
 
     def claim(self) -> None:
-        """Become the one process training this run; another one gets a clear refusal. Local
-        folders have a lock; on object storage every later write of this process is conditional on
-        the versions seen here, so a second writer makes one of the two stop in one line."""
-        if self._lock is None:
-            self._lock = self.store.lock(LOCK, f"{self.url} is being trained by another process")
-        if self._versions is None:
-            found = dict(self.store.fingerprints("*"))
-            for sub in SUBFOLDERS:
-                found |= {f"{sub}/{name}": tag for name, tag in self.store.child(sub).fingerprints("*").items()}
-            self._versions = found
+        """Become the one process training this run; another one gets a clear refusal."""
+        self._claim.claim()
 
     def release(self) -> None:
         """Stop being the trainer (to hand the run to another process, which claims it)."""
-        if self._lock is not None:
-            self._lock.release()
-            self._lock = None
-        self._versions = None
+        self._claim.release()
 
     def _write(self, name: str, data: bytes, sub: str | None = None) -> None:
-        """Every file of the run is written here, whole; by a claiming process only over the
-        version it last saw (a new file: only if still absent). `sub`: a sub-folder (SUBFOLDERS)."""
-        folder = self.store.child(sub) if sub else self.store
-        key = f"{sub}/{name}" if sub else name
-        if self._versions is None:
-            folder.put(name, data)
-            return
-        if self._lost:
-            raise SmspaceError(f"{self.url} is written by another process; this one stopped")
-        try:
-            self._versions[key] = folder.replace(name, data, self._versions.get(key))
-        except WriteConflict:
-            self._lost = True
-            raise SmspaceError(
-                f"{self.url}: another process writes this run folder ({key} changed under this one); "
-                "this one stopped and left it to the other"
-            ) from None
+        """Every file of the run is written here, whole (train/claim.py: over its own versions only)."""
+        self._claim.write(name, data, sub)
 
     def _delete(self, name: str, sub: str | None = None) -> None:
-        (self.store.child(sub) if sub else self.store).delete(name)
-        if self._versions is not None:
-            self._versions[f"{sub}/{name}" if sub else name] = None
+        self._claim.delete(name, sub)
 
     # -- lifecycle ------------------------------------------------------------------------
     @classmethod
@@ -370,7 +337,7 @@ class RunDir(RunView):
     # -- status ---------------------------------------------------------------------------
     def set_status(self, state: str, step: int, message: str = "") -> None:
         """The run's state; a running one records who runs it, so that `ls` can tell when it died."""
-        if self._lost:  # the folder is another process's now
+        if self._claim.lost:  # the folder is another process's now
             return
         status = {"state": state, "step": step, "message": message, "run_id": self.run_id}
         if state == "running":
