@@ -156,11 +156,11 @@ def by_study(runs: list[RunData]) -> list[Study]:
     studies = []
     for group in members:
         first = group[0]
-        differs = [k for k in variables if any(first.terms.get(k) != other[0].terms.get(k) for other in members)]
+        differs = sorted({k for other in members for k in differing(first.terms, other[0].terms, within=variables)})
         name = f"{first.setup}-nh{first.n_h}"
         kin = [g for g in members if (g[0].setup, g[0].n_h) == (first.setup, first.n_h)]
         if len(kin) > 1:  # the same setup and N_h: the name says what else differs
-            within = [k for k in differs if any(first.terms.get(k) != g[0].terms.get(k) for g in kin)]
+            within = sorted({k for g in kin for k in differing(first.terms, g[0].terms, within=differs)})
             name += "".join(f"-{k}{_shown(first.terms.get(k))}" for k in within if k not in ("setup", "n_h"))
         common = set.intersection(*({int(row["step"]) for row in r.rows} for r in group))
         studies.append(Study(name, group, sorted(common), differs))
