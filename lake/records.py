@@ -79,7 +79,9 @@ class Record:
 
     def decode(self, data: bytes, where: str) -> dict[str, Any]:
         """The record's body (its format checked and removed)."""
-        raw = self.parse(data, where)
+        return self._body(self.parse(data, where), where)
+
+    def _body(self, raw: Any, where: str) -> dict[str, Any]:
         self.format_of(raw, where)
         return {k: v for k, v in raw.items() if k != FORMAT}
 
@@ -94,10 +96,7 @@ class Record:
 
     def read(self, folder: Store) -> dict[str, Any]:
         """The record in `folder`, its format checked and removed (FileNotFoundError if absent)."""
-        where = f"{folder.url}/{self.file}"
-        raw = self.load(folder)
-        self.format_of(raw, where)
-        return {k: v for k, v in raw.items() if k != FORMAT}
+        return self._body(self.load(folder), f"{folder.url}/{self.file}")
 
     def write(self, folder: Store, body: Mapping[str, Any]) -> None:
         folder.put(self.file, self.encode(body))

@@ -85,7 +85,19 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
-    from smspace.api import Lake, Run, define_study, dry_run, fit, generate, load_dataset, open_lake, report, resume
+    from smspace.api import (
+        Lake,
+        Run,
+        define_study,
+        dry_run,
+        find_runs,
+        fit,
+        generate,
+        load_dataset,
+        open_lake,
+        report,
+        resume,
+    )
     from smspace.common.errors import SmspaceError
     from smspace.lake.dataset import Dataset
     from smspace.lake.transitions import MODES, Transitions
