@@ -21,6 +21,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from smspace.bench.result import ScoredRow
 from smspace.bench.run import BENCH
 from smspace.bench.suite import get_suite
 from smspace.bench.verify import NotScored, Result, verify
@@ -86,16 +87,16 @@ def cells(results: list[Result]) -> list[dict[str, Any]]:
     shown = row_names(results)
     table = []
     for r in results:
-        by_mode: dict[str, list[dict[str, Any]]] = defaultdict(list)
+        by_mode: dict[str, list[ScoredRow]] = defaultdict(list)
         for row in r.rows:
-            by_mode[row["mode"]].append(row)
+            by_mode[row.mode].append(row)
         for mode, rows in sorted(by_mode.items()):
             for score in SCORE_NAMES:
-                values = np.array([float(row[score]) for row in rows])
+                values = np.array([row.scores[score] for row in rows])
                 table.append({"suite": r.suite, "version": r.version, "task": r.task, "mode": mode,
                               "entry": shown[r.where], "code": r.code, "score": score, "mean": float(values.mean()),
                               "std": float(values.std(ddof=1)) if len(values) > 1 else None,
-                              "worlds": sorted(int(row["world"]) for row in rows), "wall_s": r.wall_s})  # fmt: skip
+                              "worlds": sorted(row.world for row in rows), "wall_s": r.wall_s})  # fmt: skip
     return table
 
 

@@ -25,6 +25,7 @@ import numpy as np
 from smspace.bench import evidence
 from smspace.bench.names import canonical_name, canonical_params, folder_of, label_of, model_defaults
 from smspace.bench.representations import REPRESENTATIONS
+from smspace.bench.result import BenchRecord, ScoredRow, ScoresRecord, Session
 from smspace.bench.scores import run_scores
 from smspace.bench.suite import Suite, Task, datasets_hash
 from smspace.common.cli import default_workers
@@ -34,7 +35,7 @@ from smspace.common.progress import duration
 from smspace.common.provenance import cpu, git_commit, version
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import dataset_id
-from smspace.lake.records import BENCH_RESULT, BENCH_SCORES, MalformedRecord
+from smspace.lake.records import BENCH_RESULT, BENCH_SCORES, UnknownFormat
 from smspace.lake.store import Store, open_store, within
 from smspace.metrics.scores import scores_of
 
@@ -153,7 +154,7 @@ def run_bench(
                 except BaseException:
                     _end(folder, session, time.monotonic() - clock, "failed")
                     raise
-                BENCH_SCORES.write(folder, {"entry": entry.record(), "session": session, "rows": rows})
+                ScoresRecord(entry.record(), session, tuple(rows)).write(folder)
                 _end(folder, session, time.monotonic() - clock, "ended")
             done.append(folder)
     return done
@@ -284,7 +285,7 @@ def _check_lake(lake: Store, suite: Suite, task: Task, missing_ok: bool = False)
 def _train(
     task: Task, entry: Entry, lake: Store, folder: Store, workers: int, gen_workers: int, executor: str,
     overwrite: bool, notify: Callable[[str], None],
-) -> list[dict[str, Any]]:  # fmt: skip
+) -> list[ScoredRow]:  # fmt: skip
     from smspace.study.runner import run_study
 
     runs = run_study(task_request(task, entry), lake, folder, overwrite, workers, gen_workers, executor, notify)
@@ -295,7 +296,7 @@ def _train(
     return rows
 
 
-def _scored(folder: Store, task: Task, row: dict[str, Any], h: np.ndarray, lake: Store) -> dict[str, Any]:
+def _scored(folder: Store, task: Task, row: dict[str, Any], h: np.ndarray, lake: Store) -> ScoredRow:
     """The row with its evidence (h, written beside the result) and the scores derived from it and
     from the positions the task's setup gives, exactly as the leaderboard derives them again."""
     world, mode = row["world"], row["mode"]
@@ -309,7 +310,7 @@ def _scored(folder: Store, task: Task, row: dict[str, Any], h: np.ndarray, lake:
         )
     h = np.asarray(h, np.float64)
     name, digest = evidence.save(folder, world, mode, h)
-    return row | {"h": name, "h_sha256": digest, **scores_of(h, p, world)}
+    return ScoredRow(world, mode, row["step"], row["wall_s"], row["run"], scores_of(h, p, world), name, digest)
 
 
 def _generate(task: Task, lake: Store, gen_workers: int, executor: str, notify: Callable[[str], None]) -> None:
@@ -327,7 +328,7 @@ def _generate(task: Task, lake: Store, gen_workers: int, executor: str, notify: 
         notify(f"bench: {task.name}'s datasets generated in {time.monotonic() - clock:.0f} s")
 
 
-def _represent(task: Task, entry: Entry, lake: Store, folder: Store) -> list[dict[str, Any]]:
+def _represent(task: Task, entry: Entry, lake: Store, folder: Store) -> list[ScoredRow]:
     rows = []
     for seed in task.world_seeds:
         for mode in task.modes:
@@ -359,41 +360,42 @@ def _check_earlier(suite: Suite, entries: list[Entry], out: Store, overwrite: bo
     """Every earlier result checked before anything is generated or trained."""
     for task in suite.tasks:
         for entry in entries:
-            _earlier(_folder(out, suite, task, entry), _terms(suite, task, entry, workers), overwrite)
+            _earlier(_folder(out, suite, task, entry), _record(suite, task, entry, workers), overwrite)
 
 
-def _terms(suite: Suite, task: Task, entry: Entry, workers: int) -> dict[str, Any]:
-    """What a result was made on. The workers of a learned entry are a term: they decide which runs
-    train stacked together, and stacked runs agree with lone ones only to float32 rounding
-    (docs/BENCHMARK.md), so another count gives other bytes."""
-    terms = {"suite": suite.name, "version": suite.version, "task": task.protocol(), "entry": entry.record(),
-             "datasets": task.datasets()}  # fmt: skip
-    return terms | ({"workers": workers} if entry.learns else {})
+def _record(suite: Suite, task: Task, entry: Entry, workers: int) -> BenchRecord:
+    """What a result is made on, before any session. The workers of a learned entry are a term:
+    they decide which runs train stacked together, and stacked runs agree with lone ones only to
+    float32 rounding (docs/BENCHMARK.md), so another count gives other bytes."""
+    return BenchRecord(suite.name, suite.version, task.protocol(), entry.record(), task.datasets(),
+                       workers if entry.learns else None)  # fmt: skip
 
 
-def _earlier(folder: Store, terms: dict[str, Any], overwrite: bool) -> dict[str, Any] | None:
+def _earlier(folder: Store, made: BenchRecord, overwrite: bool) -> BenchRecord | None:
     """The result already in `folder` (None: none, or --overwrite), refused if it was made on other
     terms (another code of the entry, another protocol): its sessions would not describe this
     result. A result of another entry is never replaced, --overwrite or not."""
     if not folder.exists(BENCH):
         return None
     try:
-        before = BENCH_RESULT.read(folder)
-    except MalformedRecord as e:  # not a result of any entry (another smspace's format is refused as it is)
+        before = BenchRecord.read(folder)
+    except UnknownFormat:  # another smspace's result: refused as it is, never replaced
+        raise
+    except SmspaceError as e:  # not a result of any entry
         if overwrite:
             return None
         raise SmspaceError(f"{e}; --overwrite replaces it") from None
-    was, now = before.get("entry"), terms["entry"]
-    if not isinstance(was, dict) or (was.get("name"), was.get("params")) != (now["name"], now["params"]):
-        shown = label_of(str(was.get("name")), was.get("params") or {}) if isinstance(was, dict) else "?"
-        if (isinstance(was, dict) and isinstance(was.get("params"), dict)) or not isinstance(was, dict):
-            raise SmspaceError(
-                f"{folder.url} holds a result of another entry ({shown}, not {label_of(now['name'], now['params'])}); "
-                "give another --out (--overwrite never replaces another entry's result)"
-            )
+    was, now = before.entry, made.entry
+    if (was.get("name"), was.get("params")) != (now["name"], now["params"]):
+        params = was.get("params") if isinstance(was.get("params"), dict) else {}
+        raise SmspaceError(
+            f"{folder.url} holds a result of another entry ({label_of(str(was.get('name')), params)}, not "
+            f"{label_of(now['name'], now['params'])}); give another --out (--overwrite never replaces another "
+            "entry's result)"
+        )
     if overwrite:
         return None
-    changed = differing(before, terms, within=terms)
+    changed = differing(before.terms(), made.terms())
     if changed == ["entry"] or ("entry" in changed and was.get("plugin") != now.get("plugin")):
         code_was = (was.get("plugin") or {}).get("code_sha256", "?") if isinstance(was.get("plugin"), dict) else "?"
         code_now = (now.get("plugin") or {}).get("code_sha256", "smspace's own")
@@ -414,19 +416,17 @@ def _begin(folder: Store, suite: Suite, task: Task, entry: Entry, workers: int, 
     stays so: the leaderboard says the time is incomplete). A result made on other terms
     (--overwrite) loses its scores and evidence here, before any work: scores are only ever those
     of the code bench.json names. Returns the session's index."""
-    terms = _terms(suite, task, entry, workers)
-    before = _earlier(folder, terms, overwrite)
+    made = _record(suite, task, entry, workers)
+    before = _earlier(folder, made, overwrite)
     if before is None:
         _forget_scores(folder)
-    sessions = before.get("sessions", []) if before else []
-    session = {"started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "wall_s": None,
-               "outcome": None, "workers": workers, "executor": executor, "smspace": version("smspace"),
-               "git_commit": git_commit(), "host": socket.gethostname(), "cores": default_workers(),
-               **cpu()}  # fmt: skip
-    record = terms | {"sessions": [*sessions, session]}
+    made_on = {"started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "workers": workers,
+               "executor": executor, "smspace": version("smspace"), "git_commit": git_commit(),
+               "host": socket.gethostname(), "cores": default_workers(), **cpu()}  # fmt: skip
+    record = (before or made).with_session(Session(None, None, made_on))
     folder.make()
-    BENCH_RESULT.write(folder, record)
-    return len(sessions)
+    record.write(folder)
+    return len(record.sessions) - 1
 
 
 def _forget_scores(folder: Store) -> None:
@@ -438,6 +438,4 @@ def _forget_scores(folder: Store) -> None:
 
 def _end(folder: Store, session: int, wall_s: float, outcome: str) -> None:
     """The session's wall time and how it ended ("ended", "failed": its time counts either way)."""
-    record = BENCH_RESULT.read(folder)
-    record["sessions"][session] |= {"wall_s": wall_s, "outcome": outcome}
-    BENCH_RESULT.write(folder, record)
+    BenchRecord.read(folder).with_ended(session, wall_s, outcome).write(folder)

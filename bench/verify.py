@@ -17,6 +17,8 @@ from typing import Any
 from smspace.bench import evidence
 from smspace.bench.names import canonical_name, canonical_params, label_of, model_defaults
 from smspace.bench.representations import REPRESENTATIONS
+from smspace.bench.result import BenchRecord, ScoredRow, ScoresRecord
+from smspace.bench.result import shown as _shown
 from smspace.bench.run import BENCH, FORMAT
 from smspace.bench.run import SCORES as SCORES_FILE
 from smspace.bench.suite import Task, datasets_hash, get_suite
@@ -30,7 +32,6 @@ from smspace.metrics.scores import SCORES, scores_of
 # Scores derived again agree with the stored ones to this (relative, absolute): the same numpy on
 # another CPU sums in another order (LAPACK's least squares, pairwise sums), never more than ~1e-12.
 TOLERANCE = (1e-9, 1e-12)
-MAX_WALL_S = 10 * 365 * 86400.0  # a session longer than ten years is not a measurement
 
 
 @dataclass(frozen=True)
@@ -44,7 +45,7 @@ class Result:
     code: str  # the code that made the scores: a plugin's code hash, or smspace's commit or version
     wall_s: float  # over the sessions whose time is known
     wall_complete: bool  # False: a session was killed before it could record its time
-    rows: list[dict[str, Any]]
+    rows: list[ScoredRow]
 
 
 class NotScored(SmspaceError):
@@ -53,56 +54,48 @@ class NotScored(SmspaceError):
 
 def verify(folder: Store, where: str) -> Result:
     bench = f"{folder.url}/{BENCH}"
-    record = _dict(_read(folder, BENCH_RESULT), bench)
-    BENCH_RESULT.format_of(record, bench)
-    suite_name, version = _typed(record, "suite", str, bench), _typed(record, "version", int, bench)
+    record = BenchRecord.parse(_read(folder, BENCH_RESULT), bench)
     try:
-        suite = get_suite(f"{suite_name}@{version}")
-        task_block = _dict(record.get("task"), f"{bench}: task")
-        task = suite.task(_typed(task_block, "name", str, bench))
+        suite = get_suite(f"{record.suite}@{record.version}")
+        task = suite.task(record.task["name"])
     except SmspaceError as e:
         raise SmspaceError(f"{bench}: {e}") from None
-    protocol = task.protocol()
-    changed = differing(task_block, protocol)
+    changed = differing(record.task, task.protocol())
     if changed:
         raise SmspaceError(
             f"{bench}: task {task.name} was measured under another protocol than {suite.label} fixes "
             f"({', '.join(changed)} differ); it is not comparable"
         )
-    _check_datasets(record.get("datasets"), task, bench)
-    entry = _dict(record.get("entry"), f"{bench}: entry")
-    name, params, learns = _check_entry(entry, bench)
-    sessions = _check_sessions(record.get("sessions"), bench)
+    _check_datasets(record.datasets, task, bench)
+    name, params, learns = _check_entry(record.entry, bench)
+    sessions = record.sessions
     if not _present(folder, SCORES_FILE):
-        outcomes = {_outcome(s) for s in sessions}
-        said = "its sessions failed" if outcomes == {"failed"} else "its first session has not ended"
+        failed = {s.outcome for s in sessions} == {"failed"}
+        said = "its sessions failed" if failed else "its first session has not ended"
         raise NotScored(f"{folder.url} is left out: {said} (no scores yet)")
     scores_file = f"{folder.url}/{SCORES_FILE}"
     raw = _read(folder, BENCH_SCORES)
-    scores = {"format": 1} if isinstance(raw, list) else _dict(raw, scores_file)  # format 1: a list of rows
-    if scores.get("format", 1) == 1:
+    if isinstance(raw, list) or (isinstance(raw, dict) and raw.get("format", 1) == 1):  # format 1: a list of rows
         raise NotScored(
             f"{folder.url} is left out: its {SCORES_FILE} is of format 1, not {FORMAT}, and "
             "carries no evidence for its scores (measured by an older smspace); measure it again"
         )
-    BENCH_SCORES.format_of(scores, scores_file)
-    if learns and not (isinstance(record.get("workers"), int) and not isinstance(record["workers"], bool)):
+    scores = ScoresRecord.parse(raw, scores_file)
+    if learns and record.workers is None:
         raise SmspaceError(f"{bench}: a learned entry's result names the workers it was trained with")
-    session = scores.get("session")
-    if not isinstance(session, int) or isinstance(session, bool) or not 0 <= session < len(sessions):
-        raise SmspaceError(f"{scores_file}: session {session!r} is not one of bench.json's {len(sessions)}")
-    if _outcome(sessions[session]) != "ended":
-        raise SmspaceError(f"{scores_file}: session {session}, which it names, did not end; its scores are not its own")
-    if scores.get("entry") != entry:
+    if scores.session >= len(sessions):
+        raise SmspaceError(f"{scores_file}: session {scores.session!r} is not one of bench.json's {len(sessions)}")
+    made = sessions[scores.session]
+    if made.outcome != "ended":
+        said = f"session {scores.session}, which it names, did not end"
+        raise SmspaceError(f"{scores_file}: {said}; its scores are not its own")
+    if scores.entry != record.entry:
         raise SmspaceError(f"{scores_file} was made by another entry or code than bench.json names; measure it again")
-    rows = _check_rows(scores.get("rows"), task, learns, folder, scores_file)
-    plugin = entry.get("plugin") or {}
-    made = sessions[session]
-    code = plugin.get("code_sha256") or str(made.get("git_commit") or made.get("smspace") or "?")
-    walls = [s["wall_s"] for s in sessions]
+    _check_rows(scores.rows, task, learns, folder, scores_file)
+    code = (record.entry.get("plugin") or {}).get("code_sha256") or made.code
     label = label_of(name, params)
     return Result(where, suite.name, suite.version, task.name, label, label.casefold(), code,
-                  sum(w for w in walls if w is not None), None not in walls, rows)  # fmt: skip
+                  record.wall_s, record.wall_complete, list(scores.rows))  # fmt: skip
 
 
 def _present(folder: Store, name: str) -> bool:
@@ -124,22 +117,9 @@ def _read(folder: Store, record: Record) -> Any:
         raise SmspaceError(f"{folder.url}/{record.file} cannot be read as a result's file ({e})") from None
 
 
-def _dict(value: Any, where: str) -> dict[str, Any]:
-    if not isinstance(value, dict):
-        raise SmspaceError(f"{where} is a {type(value).__name__}, not a table of fields")
-    return value
-
-
-def _typed(block: dict[str, Any], key: str, kind: type, where: str) -> Any:
-    value = block.get(key)
-    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-        raise SmspaceError(f"{where}: {key} is {_shown(value)}, not a {kind.__name__}")
-    return value
-
-
-def _check_datasets(datasets: Any, task: Task, where: str) -> None:
+def _check_datasets(datasets: dict[str, str], task: Task, where: str) -> None:
     ids = {dataset_id(task.setup, w, m) for w in task.world_seeds for m in task.modes}
-    if not isinstance(datasets, dict) or set(datasets) != ids or not all(isinstance(v, str) for v in datasets.values()):
+    if set(datasets) != ids:
         raise SmspaceError(f"{where}: datasets are not the task's {len(ids)} ({task.name}'s worlds x modes)")
     if datasets_hash(datasets) != task.datasets_hash:
         raise SmspaceError(f"{where}: its datasets' config hashes are not the ones task {task.name} fixes")
@@ -185,75 +165,36 @@ def _defaults_here(name: str) -> dict[str, Any] | None:
         return None
 
 
-def _check_sessions(sessions: Any, where: str) -> list[dict[str, Any]]:
-    if not isinstance(sessions, list) or not sessions or len(sessions) > 10_000:
-        raise SmspaceError(f"{where}: sessions is {_shown(sessions)}, not a list of the sessions that made it")
-    for i, session in enumerate(sessions):
-        if not isinstance(session, dict):
-            raise SmspaceError(f"{where}: session {i} is not a table of fields")
-        wall = session.get("wall_s")
-        if wall is not None and not _finite(wall, 0.0, MAX_WALL_S):
-            raise SmspaceError(f"{where}: session {i} has wall_s {_shown(wall)}, not seconds (finite, >= 0)")
-        outcome = _outcome(session)
-        if outcome not in (None, "ended", "failed") or (wall is None) != (outcome is None):
-            raise SmspaceError(f"{where}: session {i} has outcome {_shown(outcome)} with wall_s {_shown(wall)}")
-    return sessions
-
-
-def _check_rows(rows: Any, task: Task, learns: bool, folder: Store, where: str) -> list[dict[str, Any]]:
+def _check_rows(rows: tuple[ScoredRow, ...], task: Task, learns: bool, folder: Store, where: str) -> None:
     expected = {(w, m) for w in task.world_seeds for m in task.modes}
-    if not isinstance(rows, list) or len(rows) != len(expected):
-        count = len(rows) if isinstance(rows, list) else _shown(rows)
-        raise SmspaceError(f"{where}: {count} scored runs, where task {task.name} has "
+    if len(rows) != len(expected):
+        raise SmspaceError(f"{where}: {len(rows)} scored runs, where task {task.name} has "
                            f"{task.worlds} worlds x {len(task.modes)} modes")  # fmt: skip
     seen, step = set(), task.steps if learns else 0
     for i, row in enumerate(rows):  # first every row's world and mode: exactly the task's, each once
-        row = _dict(row, f"{where}: row {i}")
-        world, mode = row.get("world"), row.get("mode")
-        hashable = isinstance(world, int | str) and isinstance(mode, int | str)
-        if not hashable or (world, mode) not in expected or isinstance(world, bool) or (world, mode) in seen:
-            raise SmspaceError(f"{where}: row {i} is world {_shown(world)}, mode {_shown(mode)}: not one of task "
-                               f"{task.name}'s worlds x modes, or one counted twice")  # fmt: skip
-        seen.add((world, mode))
+        if (row.world, row.mode) not in expected or (row.world, row.mode) in seen:
+            raise SmspaceError(f"{where}: row {i} is world {_shown(row.world)}, mode {_shown(row.mode)}: not one of "
+                               f"task {task.name}'s worlds x modes, or one counted twice")  # fmt: skip
+        seen.add((row.world, row.mode))
     for i, row in enumerate(rows):
-        world, mode = row["world"], row["mode"]
-        if row.get("step") != step or isinstance(row.get("step"), bool):
-            said = _shown(row.get("step"))
-            raise SmspaceError(f"{where}: row {i} was scored at step {said}, not the protocol's {step}")
-        if not _finite(row.get("wall_s"), 0.0, MAX_WALL_S):
-            raise SmspaceError(f"{where}: row {i} has wall_s {_shown(row.get('wall_s'))}, not seconds (finite, >= 0)")
+        if row.step != step:
+            raise SmspaceError(f"{where}: row {i} was scored at step {row.step}, not the protocol's {step}")
         for score in SCORES.values():
-            if not score.can_take(row.get(score.name), task.n_h):
-                said = _shown(row.get(score.name))
+            if not score.can_take(row.scores[score.name], task.n_h):
+                said = _shown(row.scores[score.name])
                 raise SmspaceError(f"{where}: row {i} has {score.name} {said}, not a number it can take")
-        name, digest = row.get("h"), row.get("h_sha256")
-        if name != evidence.file_of(world, mode) or not isinstance(digest, str):
-            raise SmspaceError(f"{where}: row {i} names no evidence (h, h_sha256) of world {world}, mode {mode}")
-        p = evidence.positions(task.setup, world)
-        h = evidence.load(folder, name, digest, (len(p), task.n_h))
+        if row.h != evidence.file_of(row.world, row.mode):
+            said = f"world {row.world}, mode {row.mode}"
+            raise SmspaceError(f"{where}: row {i} names no evidence (h, h_sha256) of {said}")
+        p = evidence.positions(task.setup, row.world)
+        h = evidence.load(folder, row.h, row.h_sha256, (len(p), task.n_h))
         try:
-            again = scores_of(h, p, world)
+            again = scores_of(h, p, row.world)
         except SmspaceError as e:
-            raise SmspaceError(f"{folder.url}/{evidence.EVIDENCE}/{name}: {e}; it is not scored") from None
+            raise SmspaceError(f"{folder.url}/{evidence.EVIDENCE}/{row.h}: {e}; it is not scored") from None
         rel, absolute = TOLERANCE
-        wrong = [s for s in SCORES if not math.isclose(again[s], row[s], rel_tol=rel, abs_tol=absolute)]
+        stored = row.scores
+        wrong = [s for s in SCORES if not math.isclose(again[s], stored[s], rel_tol=rel, abs_tol=absolute)]
         if wrong:
-            shown = ", ".join(f"{s} {row[s]!r} (its evidence gives {again[s]!r})" for s in wrong)
-            raise SmspaceError(f"{where}: row {i} does not follow from its evidence: {shown}")
-    return rows
-
-
-def _outcome(session: dict[str, Any]) -> str | None:
-    """How a session ended: "ended", "failed", None (killed); sessions recorded before outcomes
-    were ended when their wall time is known."""
-    return session.get("outcome", None if session.get("wall_s") is None else "ended")
-
-
-def _finite(value: Any, low: float, high: float) -> bool:
-    number = isinstance(value, int | float) and not isinstance(value, bool)
-    return number and math.isfinite(value) and low <= value <= high
-
-
-def _shown(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+            said = ", ".join(f"{s} {stored[s]!r} (its evidence gives {again[s]!r})" for s in wrong)
+            raise SmspaceError(f"{where}: row {i} does not follow from its evidence: {said}")

@@ -20,6 +20,7 @@ import pytest
 from smspace.bench import evidence
 from smspace.bench.cli import parse_entry
 from smspace.bench.leaderboard import escape, markdown, row_names
+from smspace.bench.result import ScoredRow
 from smspace.bench.verify import Result
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
@@ -175,7 +176,7 @@ FORGERIES: dict[str, tuple[str, Callable[[dict], Any], str]] = {
     "session wall time negative": ("bench", lambda b: b["sessions"][0].update(wall_s=-1.0), "has wall_s -1.0"),
     "session wall time a list": ("bench", lambda b: b["sessions"][0].update(wall_s=[1]), "has wall_s [1]"),
     "forged dataset hash": ("bench", lambda b: b["datasets"].update({"grid-seed0-MM": "0" * 16}), "config hashes"),
-    "datasets missing": ("bench", lambda b: b.pop("datasets"), "datasets are not the task's 4"),
+    "datasets missing": ("bench", lambda b: b.pop("datasets"), "datasets is None, not a table of dataset ids"),
     "plugin code not a hash": ("bench", lambda b: b["entry"]["plugin"].update(code_sha256="forged!"), "not a hash"),
     "params a list": ("bench", lambda b: b["entry"].update(params=[1, 2]), "parameters are a table"),
     "params a string": ("bench", lambda b: b["entry"].update(params="width=64"), "parameters are a table"),
@@ -452,8 +453,8 @@ def test_only_failed_results_say_so_and_one_folder_given_twice_is_read_once(benc
 def test_results_of_several_suites_get_a_leaderboard_each_in_its_folder(tmp_path, monkeypatch):
     from smspace.bench import leaderboard
 
-    rows = [{"world": w, "mode": "MM", "step": 0, "wall_s": 1.0, "d_topo": 0.1 * (w + 1), "d_metric": 0.2,
-             "probe_r2": 0.5, "local_dim": 2.0} for w in range(2)]  # fmt: skip
+    scores = {"d_metric": 0.2, "probe_r2": 0.5, "local_dim": 2.0}
+    rows = [ScoredRow(w, "MM", 0, 1.0, "r", {"d_topo": 0.1 * (w + 1)} | scores, "h", "0" * 64) for w in range(2)]
     found = [
         Result(f"r/{suite}", suite, 1, "grid", "isomap", "isomap", "c", 1.0, True, rows)
         for suite in ("tiny", "spatial")

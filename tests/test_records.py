@@ -79,3 +79,36 @@ def test_runs_and_studies_of_the_layout_before_formats_are_read_and_another_form
         line = failed_in_one_line(said, "smtrain")
         assert f"{path} is of format 99; this smspace reads {path.name} of format 1" in line, line
         path.write_text(json.dumps(raw))
+
+
+def test_bench_records_of_earlier_smspaces_are_typed_and_written_back_unchanged(tmp_path):
+    """bench.json as the smspace of docs/bench/results wrote it (its sessions carry no outcome):
+    read as a typed record, each session ended where its wall time is known, and written back it
+    says the same; a field of the wrong type is one line naming the file."""
+    from pathlib import Path
+
+    from smspace.bench.result import BenchRecord
+    from smspace.common.errors import SmspaceError
+    from smspace.lake.store import open_store
+
+    results = sorted((Path(__file__).resolve().parents[1] / "docs/bench/results").rglob("bench.json"))
+    assert len(results) >= 30
+    for path in results:
+        raw = json.loads(path.read_text())
+        record = BenchRecord.parse(raw, str(path))
+        assert record.suite == raw["suite"] and len(record.sessions) == len(raw["sessions"])
+        assert all(s.outcome == ("ended" if s.wall_s is not None else None) for s in record.sessions)
+        folder = open_store(str(tmp_path / path.parent.name))
+        folder.make()
+        record.write(folder)
+        again = BenchRecord.read(folder)
+        assert again == record and again.terms() == {k: raw[k] for k in again.terms()}
+        written = json.loads((tmp_path / path.parent.name / "bench.json").read_text())
+        for before, after in zip(raw["sessions"], written["sessions"], strict=True):
+            assert {k: v for k, v in after.items() if k != "outcome"} == before
+    killed = {"sessions": [{"wall_s": None, "outcome": "ended"}]}
+    for change, said in [({"version": "2"}, "version is '2', not a int"), ({"workers": 0}, "workers is 0"),
+                         (killed, "session 0 has outcome 'ended' with wall_s None"),
+                         ({"datasets": {"a": 1}}, "datasets are not dataset ids")]:  # fmt: skip
+        with pytest.raises(SmspaceError, match="^" + re.escape(f"here: {said}")):
+            BenchRecord.parse(json.loads(results[0].read_text()) | change, "here")
