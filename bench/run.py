@@ -291,7 +291,7 @@ def _train(
     runs = run_study(task_request(task, entry), lake, folder, overwrite, workers, gen_workers, executor, notify)
     rows = []
     for run in runs:
-        row, h = run_scores(run, task.steps)
+        row, h = run_scores(run.view, task.steps)
         rows.append(_scored(folder, task, row, h, lake))
     return rows
 

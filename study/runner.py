@@ -36,7 +36,7 @@ from smspace.study.sweep import (
     study_record,
 )
 from smspace.train.config import RUNS, TrainConfig, flag_fields, parameter_count
-from smspace.train.run_dir import CONFIG, RunDir
+from smspace.train.run_dir import CONFIG, RunDir, RunView
 from smspace.train.terms import terms
 
 
@@ -361,7 +361,7 @@ def _run_state(out: Store, name: str, steps: int, overwrite: bool) -> tuple[str,
     where = out.child(name)
     if overwrite or not where.exists(CONFIG):
         return "new", 0
-    step = RunDir.open(where).checkpoint_step()
+    step = RunView.open(where).checkpoint_step()
     if step == 0:
         return "new", 0
     return ("finished", step) if step >= steps else ("resume", step)

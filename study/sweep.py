@@ -76,8 +76,8 @@ def recorded_study(out: Store) -> dict[str, Any] | None:
     found: dict[str, dict[str, Any]] = {}
     for path in out.list(f"*/{CONFIG}"):
         run = RunDir.open(out.child(path.split("/")[0]))
-        recorded = run.recorded_keys()
-        found[run.name] = {k: v for k, v in terms(run.config).items() if k in recorded}
+        recorded = run.view.recorded_keys()
+        found[run.name] = {k: v for k, v in terms(run.view.config).items() if k in recorded}
     if not found:
         return None
     first_name, first = next(iter(found.items()))
@@ -120,8 +120,8 @@ def plan_runs(
             actions.append((path, cfg, None))
             continue
         run = RunDir.open(path)
-        old = run.config
-        recorded = run.recorded_keys()  # a field an older smspace did not record is unknown, not different
+        old = run.view.config
+        recorded = run.view.recorded_keys()  # a field an older smspace did not record is unknown, not different
         diff = differing(old.to_dict(), cfg.to_dict(), ignore=("steps", "run_id", *HISTORY), within=recorded)
         if diff:
             raise SmspaceError(f"{path} holds a run with another {', '.join(diff)}; pass --overwrite or --out")
@@ -227,7 +227,7 @@ def prepare(
     at = {run.name: step for run, step in plans}
     ensembles_todo = []
     for group in study_ensembles(out, [run for run, _ in plans], max_ensemble, workers):
-        todo = [run for run in group if at[run.name] < run.config.steps]
+        todo = [run for run in group if at[run.name] < run.view.config.steps]
         if todo:  # resumed from the step all members reached (train/fit.py, resume_from_folders)
             ensembles_todo.append((todo, min(at[run.name] for run in todo) > 0))
     return [run for run, _ in plans], ensembles_todo
@@ -307,11 +307,11 @@ def _mark_stopped(runs: list[RunDir], state: str, line: str) -> None:
 
     def mark(run: RunDir) -> None:
         now = RunDir.open(run.store)
-        state_now = now.status()["state"]
+        state_now = now.view.status()["state"]
         # "created" with a checkpoint: its worker was stopped between the first checkpoint and the
         # status written after it (seen under load); one with none never started and stays so
-        if state_now in ("running", "stale") or (state_now == "created" and now.has_checkpoint()):
-            run.set_status(state, now.checkpoint_step(), line)  # the step it resumes from
+        if state_now in ("running", "stale") or (state_now == "created" and now.view.has_checkpoint()):
+            run.set_status(state, now.view.checkpoint_step(), line)  # the step it resumes from
 
     run_within([lambda run=run: mark(run) for run in runs])
 
@@ -328,7 +328,7 @@ def run_ensembles(
     for runs, _ in ensembles_todo:  # whoever trains them claims them, this process included
         for run in runs:
             run.release()
-    starts = {str(i): (len(runs), _start_step(runs) if resume else 0, runs[0].config.steps)
+    starts = {str(i): (len(runs), _start_step(runs) if resume else 0, runs[0].view.config.steps)
               for i, (runs, resume) in enumerate(ensembles_todo)}  # fmt: skip
     gpus = 1 if device.startswith("cuda") else 0
     try:
@@ -352,4 +352,4 @@ def run_ensembles(
 
 def _start_step(runs: list[RunDir]) -> int:
     """The step a resumed ensemble starts from: the last checkpoint all its members reached."""
-    return min(run.checkpoint_step() for run in runs)
+    return min(run.view.checkpoint_step() for run in runs)

@@ -48,7 +48,7 @@ def test_what_is_public_is_named_and_loads():
 
 
 def test_a_sink_of_ones_own_sees_each_evaluation_after_the_run_folder_committed_it(tmp_path):
-    from smspace.train.run_dir import RunDir
+    from smspace.train.run_dir import RunView
 
     out = tmp_path / "run"
 
@@ -57,7 +57,7 @@ def test_a_sink_of_ones_own_sees_each_evaluation_after_the_run_folder_committed_
             self.steps = []
 
         def on_evaluation(self, evaluation):
-            assert RunDir.open(out).checkpoint_step() == evaluation.step  # in the run before a logger sees it
+            assert RunView.open(out).checkpoint_step() == evaluation.step  # in the run before a logger sees it
             assert evaluation.h.shape == (125, 3) and evaluation.rows[-1]["step"] == evaluation.step
             self.steps.append(evaluation.step)
             if evaluation.step == 40:
@@ -70,7 +70,7 @@ def test_a_sink_of_ones_own_sees_each_evaluation_after_the_run_folder_committed_
     with pytest.raises(ValueError, match="server is down"):
         smspace.fit("grid-seed0-MM", lake=SAMPLES, out=out, steps=60, eval_every=20, sinks=[sink])
     assert sink.steps == [0, 20, 40]
-    status = RunDir.open(out).status()
+    status = RunView.open(out).status()
     assert status["state"] == "failed" and "server is down" in status["message"] and status["step"] == 40
     resumed = smspace.resume(out, sinks=[])
     assert [row["step"] for row in resumed.metrics()] == [0, 20, 40, 60]

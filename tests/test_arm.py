@@ -173,7 +173,7 @@ def test_preview_writes_pictures_of_a_world_and_of_a_dataset(tmp_path):
 
 def test_training_on_images(tmp_path):
     from smspace.cli import smtrain as smtrain_main
-    from smspace.train.run_dir import RunDir
+    from smspace.train.run_dir import RunView
 
     from .conftest import SAMPLES
 
@@ -193,7 +193,7 @@ def test_training_on_images(tmp_path):
         ],
     )
     assert result.exit_code == 0, result.output
-    rows = RunDir.open(tmp_path / "run").metrics()
+    rows = RunView.open(tmp_path / "run").metrics()
     assert rows[-1]["eval_loss"] < 0.7 * rows[0]["eval_loss"]
-    h, p = RunDir.open(tmp_path / "run").embeddings(200)
+    h, p = RunView.open(tmp_path / "run").embeddings(200)
     assert h.shape == (216, 3) and p.shape == (216, 2)

@@ -34,7 +34,7 @@ def config(model: str, seed: int = 3, mode: str = "MM", steps: int = 40) -> Trai
 
 
 def weights(run: RunDir) -> dict[str, torch.Tensor]:
-    return torch.load(run.local_path / "checkpoint.pt", weights_only=True)["model"]
+    return torch.load(run.view.local_path / "checkpoint.pt", weights_only=True)["model"]
 
 
 @pytest.mark.parametrize("model", BASELINES)
@@ -47,11 +47,11 @@ def test_a_baseline_trains_on_its_own_objective_alone_and_in_an_ensemble(tmp_pat
     members = [RunDir.create(tmp_path / f"member{i}", c, False) for i, c in enumerate(cfgs)]
     train_ensemble(members, progress=False)
     assert_same_weights(weights(alone), weights(members[0]), "MM")
-    rows = alone.metrics()
+    rows = alone.view.metrics()
     assert rows[-1]["train_loss"] < rows[1]["train_loss"] or model == "random-encoder", rows
     manifest = Dataset.open(cfgs[0].dataset).manifest
     shape = manifest.n_motor, math.prod(manifest.sensor_shape)
-    initial = build(alone.config, *shape, torch.device("cpu"))[0].state_dict()
+    initial = build(alone.view.config, *shape, torch.device("cpu"))[0].state_dict()
     moved = {k for k, v in weights(alone).items() if not torch.equal(v, initial[k])}
     if model == "random-encoder":
         assert moved and not any(k.startswith("encoder") for k in moved), moved
@@ -127,7 +127,7 @@ def test_a_plugin_entry_runs_the_tiny_suite_and_lands_on_the_leaderboard(tiny_be
         assert cell["worlds"] == [0, 1] and math.isfinite(cell["mean"]) and math.isfinite(cell["std"]), cell
     # the scores are those of the runs' own embeddings, measured again here (the probe's folds: the world's seed)
     run = RunDir.open(next(p for p in (root / "out/tiny-v1/shallow/grid").iterdir() if "-MM-" in p.name))
-    h, p = run.embeddings(run.metrics()[-1]["step"])
+    h, p = run.view.embeddings(run.view.metrics()[-1]["step"])
     rows = json.loads((root / "out/tiny-v1/shallow/grid/scores.json").read_text())["rows"]
     expected = np.mean([r["probe_r2"] for r in rows if r["mode"] == "MM"])
     assert cells[("shallow", "grid", "MM", "probe_r2")]["mean"] == pytest.approx(expected)
@@ -289,8 +289,8 @@ def test_a_baseline_with_its_own_objective_trains_on_two_ranks(tmp_path):
     done = run_cmd(*args, "--steps", 60, "--eval-every", 30, "--out", out, timeout=300)
     assert done.returncode == 0, done.stderr
     run = RunDir.open(out)
-    rows = run.metrics()
-    assert run.status()["state"] == "finished" and run.config.world_size == 2
+    rows = run.view.metrics()
+    assert run.view.status()["state"] == "finished" and run.view.config.world_size == 2
     assert rows[-1]["train_loss"] < rows[1]["train_loss"], rows
 
 

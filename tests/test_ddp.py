@@ -12,7 +12,7 @@ import pytest
 
 from smspace.train.distributed import INTERRUPTED, PEER_LOST
 from smspace.train.launch import _cause
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunDir, RunView
 from tests.conftest import BIN, SAMPLES
 from tests.servers import assert_loopback_only, stop_group, tree
 
@@ -47,9 +47,9 @@ def test_two_ranks_train_one_run_with_identical_weights_on_loopback_only(tmp_pat
     assert seen >= 3  # the store, and gloo on each rank
     assert stdout.count("run: ") == 1  # rank 0 alone speaks
     run = RunDir.open(out)
-    assert run.config.world_size == 2 and run.config.batch_size == 100
-    assert [r["step"] for r in run.metrics()] == [0, 40, 80, 120]  # written once, by rank 0
-    status = run.status()
+    assert run.view.config.world_size == 2 and run.view.config.batch_size == 100
+    assert [r["step"] for r in run.view.metrics()] == [0, 40, 80, 120]  # written once, by rank 0
+    status = run.view.status()
     assert status["state"] == "finished" and status["message"] == "2 ranks, identical weights at every evaluation"
     assert not [p for p in pids if tree(p)]  # no rank outlives the command
 
@@ -60,14 +60,14 @@ def test_killed_two_rank_run_resumes_on_two_ranks_only(tmp_path):
     proc = fit(*args)
     try:
         deadline = time.monotonic() + 300
-        while not ((out / "checkpoint.pt").exists() and RunDir.open(out).checkpoint_step() >= 100):
+        while not ((out / "checkpoint.pt").exists() and RunView.open(out).checkpoint_step() >= 100):
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
             time.sleep(0.2)
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(30)
     finally:
         stop_group(proc)
-    killed_at = RunDir.open(out).checkpoint_step()
+    killed_at = RunView.open(out).checkpoint_step()
     assert 100 <= killed_at < 1000
 
     alone = subprocess.run(
@@ -79,7 +79,7 @@ def test_killed_two_rank_run_resumes_on_two_ranks_only(tmp_path):
     again = fit("--resume", out, "--nproc", 2)
     stdout, stderr = again.communicate(timeout=300)
     assert again.returncode == 0, stderr
-    steps = [r["step"] for r in RunDir.open(out).metrics()]
+    steps = [r["step"] for r in RunView.open(out).metrics()]
     assert steps == list(range(0, 1001, 50))  # no step lost, none written twice
     assert json.loads(stdout.splitlines()[-1])["step"] == 1000
 
@@ -115,7 +115,7 @@ def test_a_nan_on_the_ranks_stops_every_rank_at_once(tmp_path):
     assert proc.returncode == 1, stderr
     lines = [ln for ln in stderr.splitlines() if "error" in ln]
     assert len(lines) == 1 and "NaN" in lines[0], stderr
-    status = RunDir.open(out).status()
+    status = RunView.open(out).status()
     assert status["state"] == "failed" and "NaN" in status["message"]
 
 
@@ -148,7 +148,7 @@ def test_a_rank_killed_outright_is_named_in_one_line_and_in_the_status(tmp_path,
     expected = f"smtrain: error: rank {victim} (pid {ranks[victim]}) was killed by SIGKILL; its checkpoint of step"
     assert proc.returncode == 137 and len(lines) == 1 and lines[0].startswith(expected), stderr
     assert lines[0].endswith(f"smtrain fit --resume {out} --nproc 2")
-    status = RunDir.open(out).status()
+    status = RunView.open(out).status()
     assert status["state"] == "failed" and status["message"] == lines[0].removeprefix("smtrain: error: ")
 
 
@@ -164,7 +164,7 @@ def test_sigterm_to_a_two_rank_run_says_interrupted_once(tmp_path, target):
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
     assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("interrupted"), stderr
     assert "is kept: smtrain fit --resume" in lines[0] and lines[0].endswith(f"{out} --nproc 2"), stderr
-    assert RunDir.open(out).status()["state"] == "interrupted"
+    assert RunView.open(out).status()["state"] == "interrupted"
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,7 @@ import torch
 from smspace.common.errors import SmspaceError
 from smspace.train.config import TrainConfig
 from smspace.train.fit import fit, train_ensemble
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunDir, RunView
 
 from .conftest import SAMPLES, smtrain
 from .numerics import assert_same_trajectory, assert_same_weights, relative_distance
@@ -25,7 +25,7 @@ def config(mode: str, seed: int, steps: int = 60, eval_every: int = 10) -> Train
 
 
 def checkpoint(run: RunDir) -> dict:
-    return torch.load(run.local_path / "checkpoint.pt", weights_only=True)
+    return torch.load(run.view.local_path / "checkpoint.pt", weights_only=True)
 
 
 @pytest.mark.numerical
@@ -38,8 +38,8 @@ def test_a_run_inside_an_ensemble_is_the_run_trained_alone(tmp_path):
         mode = cfg.dataset_id.rsplit("-", 1)[1]
         alone = RunDir.create(tmp_path / f"alone{i}", cfg, False)
         fit(cfg, alone)
-        assert [r["step"] for r in alone.metrics()] == list(range(0, 61, 10))
-        assert_same_trajectory(alone.metrics(), members[i].metrics(), mode)
+        assert [r["step"] for r in alone.view.metrics()] == list(range(0, 61, 10))
+        assert_same_trajectory(alone.view.metrics(), members[i].view.metrics(), mode)
         ca, cb = checkpoint(alone), checkpoint(members[i])
         assert_same_weights(ca["model"], cb["model"], mode)
         if mode != "MEM":  # the Adam state is the lone run's, slice by slice
@@ -104,14 +104,14 @@ def test_sweep_generates_trains_resumes_and_reports(tmp_path):
     assert [f.name for f in folders] == [f"grid-seed{w}-{m}-nh3-seed{w}" for w in (5, 6) for m in ("MEM", "MM", "MME")]
     for folder in folders:
         run = RunDir.open(folder)
-        assert [r["step"] for r in run.metrics()] == [0, 20, 40] and run.status()["state"] == "finished"
-        assert run.embeddings(40)[0].shape == (125, 3)
+        assert [r["step"] for r in run.view.metrics()] == [0, 20, 40] and run.view.status()["state"] == "finished"
+        assert run.view.embeddings(40)[0].shape == (125, 3)
     before = (folders[0] / "checkpoint.pt").read_bytes()
     assert smtrain(*args).exit_code == 0  # finished runs are left alone
     assert (folders[0] / "checkpoint.pt").read_bytes() == before
     extended = smtrain(*args[:-6], "--steps", 60, "--eval-every", 20, "--lake", lake, "--out", out)
     assert extended.exit_code == 0, extended.output
-    assert all(RunDir.open(f).metrics()[-1]["step"] == 60 for f in folders)
+    assert all(RunView.open(f).metrics()[-1]["step"] == 60 for f in folders)
     # a sweep run is an ordinary run folder: fit --resume continues it, view and report read it
     resumed = smtrain("fit", "--resume", folders[1], "--steps", 80)
     assert resumed.exit_code == 0, resumed.output
@@ -145,7 +145,7 @@ def test_sweep_generates_trains_resumes_and_reports(tmp_path):
     ]
     with open(report / "final.csv") as fh:
         first = next(csv.DictReader(fh))
-    mem = [RunDir.open(f).metrics()[-1]["d_metric"] for f in folders if "-MEM-" in f.name]
+    mem = [RunView.open(f).metrics()[-1]["d_metric"] for f in folders if "-MEM-" in f.name]
     assert float(first["d_metric_mean"]) == pytest.approx(np.mean(mem))
     assert "| grid-nh3-steps60 | grid | 3 | MME | 2 | 60 |" in (report / "final.md").read_text()
 
@@ -181,11 +181,11 @@ def test_six_motor_setups_and_nh25_run_through_the_same_commands(tmp_path, setup
     )
     assert result.exit_code == 0, result.output
     run = RunDir.open(tmp_path / "runs" / f"{setup}-seed0-MME-nh25-seed0")
-    h, p = run.embeddings(10)
+    h, p = run.view.embeddings(10)
     assert h.shape == (15625, 25) and p.shape == (15625, 2)
-    state = torch.load(run.local_path / "checkpoint.pt", weights_only=True)["model"]
+    state = torch.load(run.view.local_path / "checkpoint.pt", weights_only=True)["model"]
     assert state["encoder.0.weight"].shape == (6, 500)  # the paper's larger encoder for six motors (in, out)
-    assert np.isfinite(run.metrics()[-1]["d_metric"])
+    assert np.isfinite(run.view.metrics()[-1]["d_metric"])
 
 
 @pytest.mark.slow
@@ -224,7 +224,7 @@ def test_a_run_does_not_depend_on_how_a_sweep_groups_or_places_it(tmp_path):
             assert other["step"] == ref["step"] == 30
             mode = name.split("-")[2]  # grid-seed5-MEM-nh3-seed5
             assert_same_weights(ref["model"], other["model"], mode)  # tests/numerics.py: what is promised
-            a, b = RunDir(tmp_path / "six" / name).metrics(), RunDir(tmp_path / grouping / name).metrics()
+            a, b = RunView(tmp_path / "six" / name).metrics(), RunView(tmp_path / grouping / name).metrics()
             assert_same_trajectory(a, b, mode)
 
 
@@ -239,7 +239,7 @@ def test_report_keeps_studies_apart_and_projects_wide_h(tmp_path):
             cfg = replace(config(mode, 7, steps=20), n_h=n_h, eval_every=10)
             run = RunDir.create(tmp_path / f"{mode}-nh{n_h}", cfg, False)
             fit(cfg, run)
-            runs.append(run.local_path)
+            runs.append(run.view.local_path)
     result = smtrain("report", *runs, "--out", tmp_path / "report")
     assert result.exit_code == 0, result.output
     names = {p.name for p in (tmp_path / "report").iterdir()}
@@ -270,10 +270,10 @@ def test_report_never_averages_values_of_different_steps(tmp_path):
     table paired the first run's step 40 with the second's step 80 and the curves put the second
     run's step 20 at step 10."""
     a, b = RunDir.create(tmp_path / "a", config("MM", 1, 40, 10), False), None
-    fit(a.config, a)
+    fit(a.view.config, a)
     b = RunDir.create(tmp_path / "b", config("MM", 2, 80, 20), False)
-    fit(b.config, b)
-    result = smtrain("report", a.local_path, b.local_path, "--out", tmp_path / "report")
+    fit(b.view.config, b)
+    result = smtrain("report", a.view.local_path, b.view.local_path, "--out", tmp_path / "report")
     assert result.exit_code == 0, result.output
     assert "they differ in eval_every, lr_decay_steps, steps" in result.stderr
     rows = {r["study"]: r for r in final_rows(tmp_path / "report")}
@@ -285,7 +285,7 @@ def test_report_never_averages_values_of_different_steps(tmp_path):
         (a, "grid-nh3-eval_every10-lr_decay_steps32-steps40"),
         (b, "grid-nh3-eval_every20-lr_decay_steps64-steps80"),
     ):
-        last = run.metrics()[-1]
+        last = run.view.metrics()[-1]
         assert (rows[study]["runs"], int(rows[study]["step"])) == ("1", last["step"])
         assert float(rows[study]["eval_loss_mean"]) == last["eval_loss"]
 
@@ -296,24 +296,24 @@ def test_report_of_runs_in_progress_compares_them_at_one_step(tmp_path):
     runs = []
     for seed in (3, 4):
         run = RunDir.create(tmp_path / f"r{seed}", config("MME", seed, 60, 20), False)
-        fit(run.config, run)
+        fit(run.view.config, run)
         runs.append(run)
-    runs[1].write_metrics(runs[1].metrics()[:3])  # steps 0, 20, 40: as if still training
-    result = smtrain("report", *(r.local_path for r in runs), "--out", tmp_path / "report")
+    runs[1].write_metrics(runs[1].view.metrics()[:3])  # steps 0, 20, 40: as if still training
+    result = smtrain("report", *(r.view.local_path for r in runs), "--out", tmp_path / "report")
     assert result.exit_code == 0, result.output
     assert "shown up to step 40, the last every run reached (1 run(s) are further along)" in result.stderr
     (row,) = final_rows(tmp_path / "report")
-    at_40 = [next(m for m in r.metrics() if m["step"] == 40)["d_metric"] for r in runs]
+    at_40 = [next(m for m in r.view.metrics() if m["step"] == 40)["d_metric"] for r in runs]
     assert int(row["step"]) == 40 and float(row["d_metric_mean"]) == pytest.approx(np.mean(at_40))
 
 
 def test_report_refuses_the_same_run_twice(tmp_path):
     run = RunDir.create(tmp_path / "a", config("MM", 1, 20, 10), False)
-    fit(run.config, run)
+    fit(run.view.config, run)
     import shutil
 
-    shutil.copytree(run.local_path, tmp_path / "copy")
-    result = smtrain("report", run.local_path, tmp_path / "copy", "--out", tmp_path / "report")
+    shutil.copytree(run.view.local_path, tmp_path / "copy")
+    result = smtrain("report", run.view.local_path, tmp_path / "copy", "--out", tmp_path / "report")
     assert result.exit_code == 2 and "are the same run" in result.output
 
 
@@ -342,13 +342,13 @@ def test_a_sweep_killed_between_the_checkpoints_of_one_ensemble_resumes_bit_iden
     with monkeypatch.context() as patched:
         patched.setattr(RunDir, "save_checkpoint", killed_at_30)
         assert smtrain(*args, "--out", tmp_path / "killed", "--max-ensemble", 3).exit_code == 130
-    steps = sorted(RunDir.open(p).checkpoint_step() for p in (tmp_path / "killed").iterdir() if p.is_dir())
+    steps = sorted(RunView.open(p).checkpoint_step() for p in (tmp_path / "killed").iterdir() if p.is_dir())
     assert steps == [20, 20, 30]
     again = smtrain(*args, "--out", tmp_path / "killed", "--max-ensemble", max_ensemble)
     assert again.exit_code == 0, again.output
     for name in sorted(p.name for p in (tmp_path / "clean").iterdir() if p.is_dir()):
         a, b = RunDir.open(tmp_path / "clean" / name), RunDir.open(tmp_path / "killed" / name)
-        ma, mb = a.metrics(), b.metrics()
+        ma, mb = a.view.metrics(), b.view.metrics()
         for row in (*ma, *mb):
             row.pop("elapsed_s")
         assert json.dumps(ma) == json.dumps(mb), name  # bit for bit, every step once
@@ -379,11 +379,11 @@ def test_a_killed_sweep_worker_is_one_line_and_the_same_command_resumes(tmp_path
         f"smtrain: error: worker process {workers[0].pid} was killed by SIGKILL; "
         "the runs keep their last checkpoints: the same command resumes them"
     )
-    states = {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()}
+    states = {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()}
     assert states <= {"failed", "finished"} and "failed" in states
     again = subprocess.run([str(BIN / "smtrain"), *map(str, args)], capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
-    assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+    assert {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
 
 
 def test_a_killed_progress_queue_does_not_stop_a_sweep(tmp_path):
@@ -401,7 +401,7 @@ def test_a_killed_progress_queue_does_not_stop_a_sweep(tmp_path):
     os.kill(managers[0].pid, signal.SIGKILL)
     _, stderr = proc.communicate(timeout=300)
     assert proc.returncode == 0, stderr
-    assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+    assert {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
 
 
 @pytest.mark.slow
@@ -439,7 +439,7 @@ def test_a_killed_resource_tracker_leaves_a_sweep_quiet(tmp_path):
     _, stderr = proc.communicate(timeout=300)
     assert proc.returncode == 0, stderr
     assert "Traceback" not in stderr and "KeyError" not in stderr and "resource_tracker" not in stderr, stderr
-    assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+    assert {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
 
 
 @pytest.mark.slow
@@ -453,10 +453,10 @@ def test_an_interrupted_sweep_says_interrupted_as_a_lone_fit_does(tmp_path):
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
     runs = [RunDir.open(p) for p in sorted(out.iterdir()) if p.is_dir()]
-    statuses = [run.status() for run in runs]
+    statuses = [run.view.status() for run in runs]
     assert {s["state"] for s in statuses} == {"interrupted"}, statuses
     assert all("the same sweep resumes it" in s["message"] for s in statuses), statuses
-    assert [s["step"] for s in statuses] == [run.checkpoint_step() for run in runs]  # where each resumes
+    assert [s["step"] for s in statuses] == [run.view.checkpoint_step() for run in runs]  # where each resumes
     listed = smtrain("ls", "--runs", out)
     assert listed.exit_code == 0 and "interrupted" in listed.output and "stale" not in listed.output, listed.output
 
@@ -470,9 +470,9 @@ def test_a_sweep_stopped_before_a_runs_first_status_marks_it_all_the_same(tmp_pa
     started, untouched = (RunDir.create(tmp_path / name, config("MM", 1), overwrite=False) for name in "ab")
     started.save_checkpoint({"step": 0})
     _mark_stopped([started, untouched], "interrupted", "interrupted; the same sweep resumes it")
-    status = started.status()
+    status = started.view.status()
     assert (status["state"], status["step"]) == ("interrupted", 0), status
-    assert untouched.status()["state"] == "created"
+    assert untouched.view.status()["state"] == "created"
 
 
 def _sweep_with_checkpoints(tmp_path, steps: int):
@@ -513,7 +513,7 @@ def test_runs_of_one_ensemble_share_every_study_term_new_fields_included(tmp_pat
     runs = [RunDir.create(tmp_path / f"r{i}", cfg, False) for i, cfg in enumerate((first, other))]
     with pytest.raises(SmspaceError, match=f"runs of one ensemble must share {field}"):
         train_ensemble(runs, progress=False)
-    assert all(run.checkpoint_step() == 0 for run in runs)
+    assert all(run.view.checkpoint_step() == 0 for run in runs)
 
 
 def test_a_write_that_fails_behind_the_steps_stops_the_ensemble_and_is_recorded(tmp_path, monkeypatch):
@@ -536,13 +536,13 @@ def test_a_write_that_fails_behind_the_steps_stops_the_ensemble_and_is_recorded(
         with pytest.raises(SmspaceError, match="No space left on device"):
             train_ensemble(runs, progress=False)
     assert not [t for t in threading.enumerate() if t.name.startswith("smspace-run-writes")]
-    assert [run.checkpoint_step() for run in runs] == [20, 10]
+    assert [run.view.checkpoint_step() for run in runs] == [20, 10]
     for run in runs:
-        status = RunDir.open(run.local_path).status()
+        status = RunView.open(run.view.local_path).status()
         assert status["state"] == "failed" and "No space left on device" in status["message"], status
-    assert max(row["step"] for row in runs[1].metrics()) == 10
-    again = [RunDir.open(run.local_path) for run in runs]
+    assert max(row["step"] for row in runs[1].view.metrics()) == 10
+    again = [RunDir.open(run.view.local_path) for run in runs]
     train_ensemble(again, resume=True, progress=False)
     for run in again:
-        assert [row["step"] for row in run.metrics()] == list(range(0, 61, 10))
-        assert run.status()["state"] == "finished"
+        assert [row["step"] for row in run.view.metrics()] == list(range(0, 61, 10))
+        assert run.view.status()["state"] == "finished"

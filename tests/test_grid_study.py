@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunDir, RunView
 
 from .conftest import run_cmd
 
@@ -108,7 +108,7 @@ def test_a_run_that_never_evaluated_is_left_out_and_named(grid_study, tmp_path):
     combination = next(p for p in sorted(grid_study.iterdir()) if p.is_dir())
     run = next(p for p in sorted(combination.iterdir()) if (p / "config.json").exists())
     (study / combination.name).mkdir(parents=True)
-    broken = RunDir.create(study / combination.name / "failed-run", RunDir.open(run).config, False)
+    broken = RunDir.create(study / combination.name / "failed-run", RunView.open(run).config, False)
     broken.set_status("failed", 0, "the plugin raised at step 0")
     for other in sorted(combination.iterdir()):
         if (other / "config.json").exists() and other != run:
@@ -182,7 +182,7 @@ def test_tensorboard_compares_the_grid_in_its_hparams_tab_one_stream_per_run(gri
         assert hparams["setup"] == config["setup"] and hparams["model"] == config["model"]
         assert hparams["n_h"] == config["n_h"] and hparams["precision"] == config["precision"]
         assert json.loads(hparams["model_params"]) == config["model_params"]
-        last = RunDir.open(run).metrics()[-1]
+        last = RunView.open(run).metrics()[-1]
         assert metrics["space/D_metric"] == (last["step"], pytest.approx(last["d_metric"], rel=1e-6))
         (stream,) = run.glob("*tfevents*")  # one stream, read in order
         steps = [e.step for e in EventFileLoader(str(stream)).Load() if e.HasField("summary")]
@@ -351,11 +351,11 @@ def test_errors_raised_to_python_name_the_python_argument(grid_study, tmp_path):
 
     run = next(grid_study.glob("*/*/config.json")).parent
     with pytest.raises(smspace.SmspaceError) as refused:
-        smspace.fit(RunDir.open(run).config.dataset, out=run, steps=20)
+        smspace.fit(RunView.open(run).config.dataset, out=run, steps=20)
     assert "call smspace.resume(run) to continue it or overwrite=True" in str(refused.value), refused.value
     assert "--" not in str(refused.value)
     with pytest.raises(smspace.SmspaceError, match=r"^n_h must be an integer in 1\.\.65536, got 0$"):
-        smspace.fit(RunDir.open(run).config.dataset, out=tmp_path / "r", n_h=0)
+        smspace.fit(RunView.open(run).config.dataset, out=tmp_path / "r", n_h=0)
     changed = tmp_path / "grid.toml"
     changed.write_text(GRID_STUDY.replace("steps = 60", "steps = 60\nbatch_size = 40").replace("batch_size = 50\n", ""))
     with pytest.raises(smspace.SmspaceError) as other_terms:

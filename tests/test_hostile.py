@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunDir, RunView
 
 from .conftest import BIN, SAMPLES, smgen, smtrain
 
@@ -112,7 +112,7 @@ def test_leftovers_of_killed_writers_never_block_a_resume(tmp_path):
     resumed = smtrain("fit", "--resume", out, "--steps", 40)
     assert resumed.exit_code == 0, resumed.output
     assert not any(p.exists() for p in leftovers)
-    assert [r["step"] for r in RunDir.open(out).metrics()] == [0, 10, 20, 30, 40]
+    assert [r["step"] for r in RunView.open(out).metrics()] == [0, 10, 20, 30, 40]
 
 
 def test_a_checkpoint_holding_objects_is_refused_in_one_line(tmp_path):
@@ -178,7 +178,7 @@ def test_fit_resume_refuses_a_regenerated_dataset(tmp_path):
     result = smtrain("fit", "--resume", out, "--steps", 40)
     lines = result.output.strip().splitlines()
     assert result.exit_code == 2 and len(lines) == 1 and "is not the one" in lines[0], result.output
-    assert RunDir.open(out).checkpoint_step() == 20
+    assert RunView.open(out).checkpoint_step() == 20
 
 
 # -- a manifest names nothing outside its folder and every field is checked ---------------------------
@@ -371,11 +371,11 @@ def test_a_run_folder_being_trained_refuses_a_second_trainer(tmp_path):
             lines = result.output.strip().splitlines()
             assert result.exit_code == 2 and len(lines) == 1 and "being trained by another process" in lines[0]
         assert json.loads((out / "status.json").read_text())["state"] == "running"
-        assert RunDir.open(out).config.steps == 100000
+        assert RunView.open(out).config.steps == 100000
     finally:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
-    assert RunDir.open(out).status()["state"] == "stale"
+    assert RunView.open(out).status()["state"] == "stale"
     taker = RunDir.open(out)
     taker.claim()  # the lock died with its holder: another process may train the run now
     taker.release()

@@ -57,14 +57,14 @@ def test_a_plugin_network_trains_alone_and_in_a_sweep_the_same_run(line_lake, tm
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     swept = RunDir.open(runs / "line-seed0-MM-nh3-seed0")
-    assert (swept.config.model, swept.config.model_params) == ("shallow", {"width": 24})
+    assert (swept.view.config.model, swept.view.config.model_params) == ("shallow", {"width": 24})
     alone_again = RunDir.open(alone)
-    assert swept.config.seed == alone_again.config.seed == 0
-    assert_same_trajectory(alone_again.metrics(), swept.metrics(), "MM")  # tests/numerics.py
+    assert swept.view.config.seed == alone_again.view.config.seed == 0
+    assert_same_trajectory(alone_again.view.metrics(), swept.view.metrics(), "MM")  # tests/numerics.py
     report = smtrain("report", *sorted(p for p in runs.iterdir() if p.is_dir()), "--out", tmp_path / "report")
     assert report.exit_code == 0, report.output
     assert "| line |" in (tmp_path / "report" / "final.md").read_text()
-    view = smtrain("view", swept.local_path, "--save", tmp_path / "run.rrd")
+    view = smtrain("view", swept.view.local_path, "--save", tmp_path / "run.rrd")
     assert view.exit_code == 0, view.output
 
 

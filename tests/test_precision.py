@@ -8,7 +8,7 @@ import json
 import pytest
 
 from smspace.train.precision import resolve
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunDir, RunView
 
 from .conftest import SAMPLES, run_cmd, smtrain
 
@@ -20,11 +20,11 @@ def test_auto_is_decided_when_the_run_is_created_and_kept_on_resume(tmp_path):
     assert result.returncode == 0, result.stderr
     decided, why = resolve("auto", "cpu")
     assert f"--precision auto: {decided} ({why})" in result.stderr
-    assert RunDir.open(out).config.precision == decided  # what was decided, never "auto"
+    assert RunView.open(out).config.precision == decided  # what was decided, never "auto"
     refused = smtrain("fit", "--resume", out, "--steps", 60, "--precision", "fp32" if decided == "bf16" else "bf16")
     assert refused.exit_code == 2 and "--precision" in refused.output
     assert smtrain("fit", "--resume", out, "--steps", 60).exit_code == 0
-    assert RunDir.open(out).config.precision == decided
+    assert RunView.open(out).config.precision == decided
 
 
 def test_bf16_trains_in_bf16_and_is_a_term_of_its_study(tmp_path):
@@ -33,12 +33,12 @@ def test_bf16_trains_in_bf16_and_is_a_term_of_its_study(tmp_path):
              "--eval-every", 20, "--lake", lake, "--out", out, "--workers", 1]  # fmt: skip
     assert smtrain(*sweep, "--precision", "bf16").exit_code == 0
     runs = [RunDir.open(p.parent) for p in sorted(out.glob("*/config.json"))]
-    assert len(runs) == 2 and all(r.config.precision == "bf16" for r in runs)
+    assert len(runs) == 2 and all(r.view.config.precision == "bf16" for r in runs)
     alone = smtrain("fit", "grid-seed0-MM", "--lake", lake, "--out", tmp_path / "fp32", "--steps", 40,
                     "--eval-every", 20)  # fmt: skip
     assert alone.exit_code == 0
-    in_bf16 = runs[0].metrics()[-1]["eval_loss"]
-    in_fp32 = RunDir.open(tmp_path / "fp32").metrics()[-1]["eval_loss"]
+    in_bf16 = runs[0].view.metrics()[-1]["eval_loss"]
+    in_fp32 = RunView.open(tmp_path / "fp32").metrics()[-1]["eval_loss"]
     assert in_bf16 != in_fp32 and in_bf16 == pytest.approx(in_fp32, rel=0.2)  # rounded, not another model
     refused = smtrain(*sweep, "--precision", "fp32")
     assert refused.exit_code == 2 and 'precision "bf16" (asked "fp32")' in refused.output
@@ -57,7 +57,7 @@ def test_compile_reports_its_time_and_a_broken_compiler_falls_back_in_one_line(t
     works = run_cmd("smtrain", "fit", *args, "--out", tmp_path / "compiled", env=env, timeout=600)
     assert works.returncode == 0, works.stderr
     assert "--compile:" not in works.stderr and any("compiled in " in ln for ln in works.stderr.splitlines())
-    compiled, eager = RunDir.open(tmp_path / "compiled").metrics(), RunDir.open(tmp_path / "broken").metrics()
+    compiled, eager = RunView.open(tmp_path / "compiled").metrics(), RunView.open(tmp_path / "broken").metrics()
     for a, b in zip(compiled, eager, strict=True):  # fused kernels sum in another order: the same run, to rounding
         assert a["eval_loss"] == pytest.approx(b["eval_loss"], rel=1e-3), (a, b)
 
@@ -72,7 +72,7 @@ def test_a_sweep_without_a_compiler_says_so_once_not_once_per_worker(tmp_path):
     assert result.returncode == 0, result.stderr
     fallback = [ln for ln in result.stderr.splitlines() if ln.startswith("--compile:")]
     assert len(fallback) == 1 and "training eagerly" in fallback[0], result.stderr
-    sessions = [RunDir.open(p.parent).config.sessions[-1] for p in (tmp_path / "runs").glob("*/config.json")]
+    sessions = [RunView.open(p.parent).config.sessions[-1] for p in (tmp_path / "runs").glob("*/config.json")]
     assert len(sessions) == 2 and all(s["compile"].startswith("eager:") for s in sessions), sessions
 
 
@@ -102,11 +102,11 @@ def test_compile_auto_compiles_where_the_sessions_run_steps_repay_it_and_records
     args = ["grid-seed0-MM", "--lake", SAMPLES, "--out", out, "--steps", 30, "--eval-every", 10, "--compile", "auto"]
     result = run_cmd("smtrain", "fit", *args)
     assert result.returncode == 0, result.stderr
-    config = RunDir.open(out).config
+    config = RunView.open(out).config
     assert config.compile == "auto"
     assert config.sessions[-1]["compile"].startswith("eager: auto, 30 run-steps"), config.sessions
     assert smtrain("fit", "--resume", out, "--steps", 50).exit_code == 0  # the session trains the 20 steps left
-    assert RunDir.open(out).config.sessions[-1]["compile"].startswith("eager: auto, 20 run-steps")
+    assert RunView.open(out).config.sessions[-1]["compile"].startswith("eager: auto, 20 run-steps")
 
 
 def test_compile_keeps_reading_the_true_and_false_of_older_runs_and_study_files(tmp_path):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunView
 
 from .conftest import ROOT, SAMPLES, smtrain
 
@@ -20,7 +20,7 @@ def test_each_training_session_is_recorded_and_shown(tmp_path):
     assert first.exit_code == 0, first.output
     resumed = smtrain("fit", "--resume", out, "--steps", 150)
     assert resumed.exit_code == 0, resumed.output
-    sessions = RunDir.open(out).config.sessions
+    sessions = RunView.open(out).config.sessions
     assert len(sessions) == 2
     for session in sessions:
         assert session["torch"] == torch.__version__ and session["device"] == "cpu" and session["threads"] == 1

@@ -10,7 +10,7 @@ import numpy as np
 from google.protobuf import text_format
 from tensorboard.plugins.projector.projector_config_pb2 import ProjectorConfig
 
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunView
 
 from .conftest import SAMPLES, board_scalars, smtrain
 
@@ -22,7 +22,7 @@ def test_a_run_s_tensorboard_files_hold_its_metrics_and_its_learned_space(tmp_pa
     out = tmp_path / "run"
     result = smtrain("fit", "grid-seed0-MME", "--lake", SAMPLES, "--out", out, "--steps", 300, "--eval-every", 100)
     assert result.exit_code == 0, result.output
-    rows = RunDir.open(out).metrics()
+    rows = RunView.open(out).metrics()
     scalars = board_scalars(out)
     assert set(scalars) == set(COLUMNS)
     for tag, column in COLUMNS.items():
@@ -35,7 +35,7 @@ def test_a_run_s_tensorboard_files_hold_its_metrics_and_its_learned_space(tmp_pa
     config = text_format.Parse((board / "projector_config.pbtxt").read_text(), ProjectorConfig())
     (embedding,) = config.embeddings
     assert embedding.tensor_name == "h (step 300)"
-    h, p = RunDir.open(out).embeddings(300)
+    h, p = RunView.open(out).embeddings(300)
     tensors = np.loadtxt(board / embedding.tensor_path, delimiter="\t", ndmin=2)
     np.testing.assert_allclose(tensors, h, rtol=1e-6, atol=1e-7)
     meta = np.loadtxt(board / embedding.metadata_path, delimiter="\t", skiprows=1, ndmin=2)

@@ -9,7 +9,7 @@ from functools import partial
 import pytest
 
 from smspace.common.errors import SmspaceError
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunView
 
 from .conftest import SAMPLES, failed_in_one_line, smtrain
 
@@ -28,7 +28,7 @@ def test_a_finished_run_is_never_shortened(tmp_path):
     line = error_line(smtrain("fit", "--resume", out, "--steps", 40))
     assert "--steps 40 is fewer than the 60 steps" in line and "never shortened" in line
     assert ((out / "config.json").read_bytes(), (out / "checkpoint.pt").read_bytes()) == before
-    assert RunDir.open(out).status()["state"] == "finished"
+    assert RunView.open(out).status()["state"] == "finished"
 
 
 def test_an_unfinished_run_is_not_shortened_either(tmp_path):
@@ -58,7 +58,7 @@ def test_an_extension_keeps_the_schedule_says_so_and_is_recorded(tmp_path):
     cfg = config_of(out)
     assert cfg["steps"] == 80 and cfg["lr_decay_steps"] == 32
     assert cfg["extensions"] == [{"from_steps": 40, "to_steps": 80}]
-    assert [r["step"] for r in RunDir.open(out).metrics()] == [0, 20, 40, 60, 80]
+    assert [r["step"] for r in RunView.open(out).metrics()] == [0, 20, 40, 60, 80]
 
 
 def sweep(out, lake, *extra):
@@ -81,7 +81,7 @@ def test_a_study_extended_with_more_worlds_keeps_one_schedule_for_all(tmp_path):
     assert [p.name for p in runs] == [f"grid-seed{w}-MM-nh3-seed{w}" for w in (4, 5, 6)]
     assert [(config_of(p)["steps"], config_of(p)["lr_decay_steps"]) for p in runs] == [(60, 32)] * 3
     assert [len(config_of(p)["extensions"]) for p in runs] == [1, 1, 0]
-    assert all(RunDir.open(p).metrics()[-1]["step"] == 60 for p in runs)
+    assert all(RunView.open(p).metrics()[-1]["step"] == 60 for p in runs)
     report = smtrain("report", *runs, "--out", tmp_path / "report")
     assert report.exit_code == 0, report.stderr
     assert "| grid | 3 | MM | 3 | 60 |" in (tmp_path / "report" / "final.md").read_text()  # one study of 3 runs

@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from smspace.metrics import spatial_scores
-from smspace.train.run_dir import RunDir
+from smspace.train.run_dir import RunDir, RunView
 
 from .conftest import BIN, SAMPLES, failed_in_one_line, smtrain
 
@@ -36,14 +36,14 @@ def test_short_run_learns_and_writes_a_complete_run_folder(tmp_path):
     assert result.exit_code == 0, result.output
     final = json.loads(result.output.strip().splitlines()[-1])
     run = RunDir.open(out)
-    rows = run.metrics()
+    rows = run.view.metrics()
     assert [r["step"] for r in rows] == [0, 200, 400, 600]
     assert final["eval_loss"] == rows[-1]["eval_loss"]
     assert rows[-1]["eval_loss"] < 0.5 * rows[0]["eval_loss"], "the loss must fall"
     assert rows[-1]["d_metric"] < rows[0]["d_metric"]
     assert math.isnan(rows[0]["train_loss"]) and rows[1]["lr"] < rows[0]["lr"]
     # anyone can recompute the metrics from the stored h and p
-    h, p = run.embeddings(600)
+    h, p = run.view.embeddings(600)
     assert h.shape == (125, 3) and p.shape == (125, 2)
     again = spatial_scores(h.astype(np.float64), p)
     assert again.d_topo == pytest.approx(rows[-1]["d_topo"], rel=1e-5)
@@ -53,7 +53,7 @@ def test_short_run_learns_and_writes_a_complete_run_folder(tmp_path):
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["steps"] == 600 and cfg["n_h"] == 3 and cfg["lr_decay_steps"] == 480
     assert cfg["dataset_id"] == "grid-seed0-MME"
-    assert run.status()["state"] == "finished"
+    assert run.view.status()["state"] == "finished"
     listed = smtrain("ls", "--runs", tmp_path)
     assert "run" in listed.output and "finished" in listed.output
     info = json.loads(smtrain("info", out, "--json").output)
@@ -125,7 +125,7 @@ def test_killed_run_resumes_bit_identical(tmp_path, precision):
     assert "--resume" in one_error_line(refused)
     resumed = smtrain("fit", "--resume", killed)
     assert resumed.exit_code == 0, resumed.output
-    a, b = RunDir.open(clean).metrics(), RunDir.open(killed).metrics()
+    a, b = RunView.open(clean).metrics(), RunView.open(killed).metrics()
     for row in (*a, *b):
         row.pop("elapsed_s")
     assert len(a) == len(b) == 21
@@ -134,7 +134,7 @@ def test_killed_run_resumes_bit_identical(tmp_path, precision):
     cb = torch.load(killed / "checkpoint.pt", weights_only=True)
     for name, tensor in ca["model"].items():
         assert torch.equal(tensor, cb["model"][name]), name
-    np.testing.assert_array_equal(RunDir.open(clean).embeddings(2000)[0], RunDir.open(killed).embeddings(2000)[0])
+    np.testing.assert_array_equal(RunView.open(clean).embeddings(2000)[0], RunView.open(killed).embeddings(2000)[0])
     from .conftest import board_scalars  # the evaluations past the kept checkpoint were dropped
 
     assert board_scalars(killed) == board_scalars(clean)
@@ -201,7 +201,7 @@ def test_corrupt_shard_met_during_training_keeps_the_last_checkpoint(tmp_path, m
     assert "shard-00003.mcap" in line
     ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
     assert ckpt["step"] % 10 == 0 and ckpt["step"] < 500
-    assert RunDir.open(out).status()["state"] == "failed"
+    assert RunView.open(out).status()["state"] == "failed"
 
 
 def test_nan_loss_stops_and_says_so(tmp_path):
@@ -221,7 +221,7 @@ def test_output_folder_holding_another_run(tmp_path):
     assert "--resume" in line and "--overwrite" in line
     assert (out / "checkpoint.pt").read_bytes() == before
     assert fit("grid-seed0-MME", out, "--steps", 20, "--eval-every", 10, "--overwrite").exit_code == 0
-    assert RunDir.open(out).config.dataset_id == "grid-seed0-MME"
+    assert RunView.open(out).config.dataset_id == "grid-seed0-MME"
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a GPU")
@@ -321,15 +321,15 @@ def test_ctrl_c_says_which_checkpoint_is_kept_and_how_to_resume(tmp_path):
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as from a terminal
     )  # fmt: skip
     deadline = time.time() + 120
-    while time.time() < deadline and not ((out / "checkpoint.pt").exists() and RunDir(out).checkpoint_step() >= 200):
+    while time.time() < deadline and not ((out / "checkpoint.pt").exists() and RunView(out).checkpoint_step() >= 200):
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
-    step = RunDir.open(out).checkpoint_step()
+    step = RunView.open(out).checkpoint_step()
     last = stderr.strip().splitlines()[-1]
     assert last == f"interrupted; its checkpoint of step {step} is kept: smtrain fit --resume {out}", stderr
-    status = RunDir.open(out).status()
+    status = RunView.open(out).status()
     assert status["state"] == "interrupted" and str(step) in status["message"]
 
 
@@ -353,7 +353,7 @@ def test_ctrl_c_of_a_sweep_says_the_same_command_resumes_it(tmp_path):
         f"interrupted; the runs in {out} keep their last checkpoints and the lake its complete parts: "
         "the same command resumes them"
     )
-    assert {RunDir.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"interrupted"}
+    assert {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"interrupted"}
 
 
 def test_a_run_resumed_from_its_step_0_checkpoint_records_step_0_once(tmp_path, monkeypatch):
@@ -372,10 +372,10 @@ def test_a_run_resumed_from_its_step_0_checkpoint_records_step_0_once(tmp_path, 
         patched.setattr(SingleLearner, "train_step", stop)
         with pytest.raises(KeyboardInterrupt):
             run_fit(cfg, run)
-    assert run.checkpoint_step() == 0 and [r["step"] for r in run.metrics()] == [0]
-    result = smtrain("fit", "--resume", run.local_path)
+    assert run.view.checkpoint_step() == 0 and [r["step"] for r in run.view.metrics()] == [0]
+    result = smtrain("fit", "--resume", run.view.local_path)
     assert result.exit_code == 0, result.output
-    assert [r["step"] for r in RunDir.open(run.local_path).metrics()] == [0, 100, 200]
+    assert [r["step"] for r in RunView.open(run.view.local_path).metrics()] == [0, 100, 200]
 
 
 @pytest.mark.numerical
@@ -405,7 +405,7 @@ def test_a_checkpoint_of_smspace_0_1_resumes_bit_identical(tmp_path, monkeypatch
         patched.setattr(SingleLearner, "train_step", stop_after_20)
         with pytest.raises(KeyboardInterrupt):
             run_fit(replace(cfg), old)
-    ckpt = torch.load(old.local_path / "checkpoint.pt", weights_only=True)
+    ckpt = torch.load(old.view.local_path / "checkpoint.pt", weights_only=True)
     assert ckpt["step"] == 20 and ckpt.pop("layout") == "in-out"
     names = list(ckpt["model"])
     for i, name in enumerate(names):  # as smspace 0.1 wrote it
@@ -413,9 +413,9 @@ def test_a_checkpoint_of_smspace_0_1_resumes_bit_identical(tmp_path, monkeypatch
             ckpt["model"][name] = ckpt["model"][name].t().contiguous()
             for key in ("exp_avg", "exp_avg_sq"):
                 ckpt["optimizer"]["state"][i][key] = ckpt["optimizer"]["state"][i][key].t().contiguous()
-    torch.save(ckpt, old.local_path / "checkpoint.pt")
-    assert smtrain("fit", "--resume", old.local_path).exit_code == 0
-    a, b = clean.metrics(), RunDir.open(old.local_path).metrics()
+    torch.save(ckpt, old.view.local_path / "checkpoint.pt")
+    assert smtrain("fit", "--resume", old.view.local_path).exit_code == 0
+    a, b = clean.view.metrics(), RunView.open(old.view.local_path).metrics()
     for row in (*a, *b):
         row.pop("elapsed_s")
     assert json.dumps(a) == json.dumps(b)

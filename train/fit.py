@@ -75,7 +75,7 @@ def plan_fit(
             raise SmspaceError(f"--resume continues a run with its own config; drop {' '.join(extra) or 'DATASET'}")
         run = RunDir.open(resume)
         steps = template.steps if "steps" in given else None
-        cfg, change = resumed(run.config, run.url, steps, world)
+        cfg, change = resumed(run.view.config, run.url, steps, world)
         ds = run_dataset(cfg, run.url).verify()
         manifest = ds.manifest
         cfg = cfg if cfg.encoder_layers else cfg.for_dataset(ds.store, manifest)  # a config built by hand
@@ -83,7 +83,7 @@ def plan_fit(
         check_network(cfg, manifest)
         checkpoint = run.load_checkpoint()
         engine.check_checkpoint(checkpoint, cfg, *_shape(manifest), f"{run.url}/{CHECKPOINT}")
-        run.check_whole(checkpoint)
+        run.view.check_whole(checkpoint)
         return FitPlan(cfg, run.url, resume=True, change=change)
     if dataset is None:
         raise SmspaceError("DATASET is required (or --resume RUN_DIR)")
@@ -233,10 +233,10 @@ def resume_from_folders(
                     f"runs trained together must resume at one step: {run.url} is at step "
                     f"{ckpt['step']} and keeps no checkpoint of step {step}"
                 )
-        run.check_whole(checkpoints[r])
+        run.view.check_whole(checkpoints[r])
     step = engine.resume(learner, members, checkpoints, shape)
     for m, run in zip(members, runs, strict=True):
-        m.rows = [row for row in run.metrics() if row["step"] <= step]
+        m.rows = [row for row in run.view.metrics() if row["step"] <= step]
         if ranks.primary:  # the run folder is rank 0's
             run.truncate_after(step)
     return step
@@ -266,9 +266,9 @@ def _mark(runs: list[RunDir], state: str, message: str) -> None:
 
     def mark(run: RunDir) -> None:
         try:
-            step = run.checkpoint_step()
+            step = run.view.checkpoint_step()
         except SmspaceError:  # unreadable: the status says what it last knew
-            step = run.status()["step"]
+            step = run.view.status()["step"]
         run.set_status(state, step, " ".join(message.replace("{step}", str(step)).split()))
 
     run_within([lambda run=run: mark(run) for run in runs])
@@ -299,7 +299,7 @@ def claimed(
 def _steps_done(run: RunDir) -> int:
     """The step of a run's last evaluation, as its status says (0 where it cannot say)."""
     try:
-        return int(run.status()["step"])
+        return int(run.view.status()["step"])
     except SmspaceError:
         return 0
 
@@ -340,9 +340,9 @@ def train_ensemble(
     """Train runs together to their configured steps: from scratch, or (resume) from their
     checkpoints; `on_step` hears the step about every second."""
     torch.set_num_threads(threads)
-    device = resolve_device(runs[0].config.device)
-    with claimed(runs, runs[0].config, threads, resume) as decision, recorded_outcome(runs):
-        opened = [open_member(run, run.config, device) for run in runs]
+    device = resolve_device(runs[0].view.config.device)
+    with claimed(runs, runs[0].view.config, threads, resume) as decision, recorded_outcome(runs):
+        opened = [open_member(run, run.view.config, device) for run in runs]
         members, manifests = [m for m, _ in opened], [ds.manifest for _, ds in opened]
         cfgs, shape = [m.cfg for m in members], _shape(manifests[0])
         check_one_ensemble(cfgs)

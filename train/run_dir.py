@@ -215,9 +215,9 @@ class RunView:
         return int(self.load_checkpoint()["step"]) if self.has_checkpoint() else 0
 
     def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
-        return self._loaded(self._checkpoint_bytes(), f"{self.url}/{CHECKPOINT}", device)
+        return loaded_checkpoint(self.checkpoint_bytes(), f"{self.url}/{CHECKPOINT}", device)
 
-    def _checkpoint_bytes(self) -> bytes:
+    def checkpoint_bytes(self) -> bytes:
         try:
             data = self._read(CHECKPOINT)
         except FileNotFoundError:
@@ -227,31 +227,53 @@ class RunView:
             ) from None
         return data
 
-    @staticmethod
-    def _loaded(data: bytes, where: str, device: str) -> dict[str, Any]:
-        import torch  # here, not at the top: reading a run folder (ls, info, report) needs no torch
 
-        try:
-            return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
-        except pickle.UnpicklingError as e:  # weights_only refused an object: never load it another way
-            raise SmspaceError(
-                f"{where} is not a smspace checkpoint (it holds objects other than tensors and plain data); "
-                "it was not loaded"
-            ) from e
-        except Exception as e:
-            raise SmspaceError(f"checkpoint {where} is unreadable ({type(e).__name__}); it was not loaded") from e
+def loaded_checkpoint(data: bytes, where: str, device: str) -> dict[str, Any]:
+    import torch  # here, not at the top: reading a run folder (ls, info, report) needs no torch
+
+    try:
+        return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
+    except pickle.UnpicklingError as e:  # weights_only refused an object: never load it another way
+        raise SmspaceError(
+            f"{where} is not a smspace checkpoint (it holds objects other than tensors and plain data); "
+            "it was not loaded"
+        ) from e
+    except Exception as e:
+        raise SmspaceError(f"checkpoint {where} is unreadable ({type(e).__name__}); it was not loaded") from e
 
 
-class RunDir(RunView):
+class RunDir:
     """A run folder on this machine or on object storage (any fsspec URL), as the process training
     it writes it: every file is written whole in one step, the checkpoint last at each evaluation
-    (it is the commit record: resume trims what later evaluations wrote)."""
+    (it is the commit record: resume trims what later evaluations wrote).
+
+    It holds the folder's RunView (`view`: everything read, config, metrics, status, checkpoints)
+    and only what writing needs besides: the claim with the versions its writes are conditional on,
+    the checkpoint it last wrote, the config it trains by."""
 
     def __init__(self, where: Path | str | Store):
-        super().__init__(where)
+        self.view = RunView(where)
+        self.store = self.view.store
         self._claim = Claim(self.store, SUBFOLDERS)  # who writes, and over which versions: train/claim.py
         self._last_checkpoint: bytes | None = None  # the bytes this process last wrote or resumed from
         self._terms: dict[str, Any] | None = None  # the config this process trains by, once read or written
+
+    @classmethod
+    def open(cls, where: Path | str | Store) -> RunDir:
+        """The run in `where`, refused in one line if it holds none."""
+        return cls(RunView.open(where).store)
+
+    @property
+    def url(self) -> str:
+        return self.view.url
+
+    @property
+    def name(self) -> str:
+        return self.view.name
+
+    @property
+    def run_id(self) -> str:
+        return self.view.run_id
 
     def claim(self) -> None:
         """Become the one process training this run; another one gets a clear refusal."""
@@ -287,7 +309,7 @@ class RunDir(RunView):
             raise SmspaceError(
                 f"{run.url}: another process created a run there meanwhile; choose another --out"
             ) from None
-        run._run_id = cfg.run_id
+        run.view._run_id = cfg.run_id
         return run
 
     @classmethod
@@ -314,13 +336,13 @@ class RunDir(RunView):
         """The config this process trains by, read once: read again at every evaluation, a folder
         another process just cleared would be "not a run folder" instead of a lost write."""
         if self._terms is None:
-            self._terms = asdict(self.config)
+            self._terms = asdict(self.view.config)
         return self._terms
 
     def record_session(self, device: str, threads: int, compile: str | None = None) -> None:
         """Add what this training session runs on to config.json (by the process that claimed it),
         with what it does of --compile (train/precision.py: the decision the steps act on)."""
-        cfg = self.config
+        cfg = self.view.config
         done = {"compile": compile} if compile is not None else {}
         self.write_config(replace(cfg, sessions=[*cfg.sessions, provenance.session(device, threads, **done)]))
 
@@ -351,7 +373,7 @@ class RunDir(RunView):
 
     def write_embeddings(self, step: int, h: np.ndarray, p: np.ndarray, extra: dict[str, np.ndarray]) -> None:
         """h of the regular sampling with its p (so anyone can recompute the metrics), plus extras."""
-        folder = self._embeddings()
+        folder = self.store.child(EMBEDDINGS)
         folder.make()
         columns = {
             "index": pa.array(np.arange(len(h), dtype=np.int32)),
@@ -396,7 +418,7 @@ class RunDir(RunView):
     def truncate_after(self, step: int) -> None:
         """Drop what evaluations after `step` wrote, and whatever killed writers left half-done."""
         self.store.remove_partials()
-        folder = self._embeddings()
+        folder = self.store.child(EMBEDDINGS)
         folder.remove_partials()
         for name in folder.list("*"):
             match = EVALUATION_FILE.fullmatch(name)
@@ -404,14 +426,16 @@ class RunDir(RunView):
                 self._delete(name, sub=EMBEDDINGS)
         self.store.child(tensorboard.FOLDER).remove_partials()
         if self.store.exists(tensorboard.EVENTS):  # the stream again, without the evaluations dropped
-            rows = [row for row in self.metrics() if row["step"] <= step]
+            rows = [row for row in self.view.metrics() if row["step"] <= step]
             self._write(tensorboard.EVENTS, tensorboard.run_events(self._trained_terms(), rows))
 
     # -- checkpoints --------------------------------------------------------------------------
     def load_checkpoint(self, device: str = "cpu") -> dict[str, Any]:
-        data = self._checkpoint_bytes()
-        self._last_checkpoint = data  # what keep_previous keeps when the next checkpoint replaces it
-        return self._loaded(data, f"{self.url}/{CHECKPOINT}", device)
+        """The checkpoint, as the view loads it; the writer keeps its bytes, which keep_previous
+        keeps when the next checkpoint replaces it."""
+        data = self.view.checkpoint_bytes()
+        self._last_checkpoint = data
+        return loaded_checkpoint(data, f"{self.url}/{CHECKPOINT}", device)
 
     def save_checkpoint(self, state: dict[str, Any], keep_previous: bool = False) -> None:
         """The new commit record; `keep_previous`: the one it replaces is kept beside it first, so
@@ -429,10 +453,10 @@ class RunDir(RunView):
     def roll_back(self, device: str = "cpu") -> dict[str, Any]:
         """The kept previous checkpoint, made the commit record again (this run was one evaluation
         ahead of its ensemble)."""
-        data = self._read(PREVIOUS)
+        data = self.store.read_bytes(PREVIOUS)
         self._write(CHECKPOINT, data)
         self._last_checkpoint = data
-        return self._loaded(data, f"{self.url}/{PREVIOUS}", device)
+        return loaded_checkpoint(data, f"{self.url}/{PREVIOUS}", device)
 
 
 def _config_bytes(cfg: TrainConfig) -> bytes:
@@ -471,7 +495,7 @@ def after_a_stop(where: str, world: int = 1) -> str:
     found: list[tuple[bool, int]] = []
 
     def look() -> None:
-        run = RunDir.open(where)
+        run = RunView.open(where)
         found.append((run.store.exists(CHECKPOINT), int(run.status().get("step", 0))))
 
     run_within([look])
