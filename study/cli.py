@@ -24,6 +24,7 @@ from smspace.datagen import options as generation
 from smspace.train.cli import say_precision
 from smspace.train.config import RUNS, flag_fields, flag_name
 from smspace.train.options import config_from_flags, config_options, given_fields, on_command_line
+from smspace.train.run_dir import RunDir
 
 
 @click.command()
@@ -123,10 +124,10 @@ def sweep(
     _echo_finals(runs)
 
 
-def _echo_finals(runs) -> None:
+def _echo_finals(runs: list[RunDir]) -> None:
     """One line per run, as a lone fit ends: where it is, then its last evaluation (JSON)."""
     for run in runs:
-        last = run.summary()
+        last = run.view.summary()
         shown = {k: last[k] for k in ("state", "step", "eval_loss", "d_topo", "d_metric")}
         click.echo(f"{display_name(run.url)}\t{json.dumps(shown)}")
 

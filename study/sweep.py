@@ -113,7 +113,7 @@ def plan_runs(
     out = open_store(out)
     manifests = [load_manifest(folder) for folder in datasets]
     cfgs = [replace(template, seed=m.world_seed).for_dataset(f, m) for f, m in zip(datasets, manifests, strict=True)]
-    actions = []
+    actions: list[tuple[Store, TrainConfig, tuple[RunDir, TrainConfig | None] | None]] = []
     for cfg in cfgs:
         path = out.child(cfg.run_name)
         if overwrite or not path.exists(CONFIG):
@@ -142,9 +142,9 @@ def plan_runs(
         run, extended = existing
         if extended is not None:
             run.write_config(extended)
-        step = run.checkpoint_step()
+        step = run.view.checkpoint_step()
         if step == 0:  # killed before its first checkpoint: start it afresh
-            run = RunDir.create(path, extended or run.config, overwrite=True)
+            run = RunDir.create(path, extended or run.view.config, overwrite=True)
         plans.append((run, step))
     return plans
 
