@@ -19,8 +19,6 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import numpy as np
-
 from smspace.bench.result import ScoredRow
 from smspace.bench.run import BENCH
 from smspace.bench.suite import get_suite
@@ -29,6 +27,7 @@ from smspace.common.errors import SmspaceError
 from smspace.lake import scan
 from smspace.lake.store import Store, open_store
 from smspace.metrics.scores import SCORES
+from smspace.metrics.spread import Spread, as_cell
 from smspace.train.pages import record_files, recorded_files, refuse_inside, write_atomically
 
 SCORE_NAMES = tuple(SCORES)
@@ -92,11 +91,11 @@ def cells(results: list[Result]) -> list[dict[str, Any]]:
             by_mode[row.mode].append(row)
         for mode, rows in sorted(by_mode.items()):
             for score in SCORE_NAMES:
-                values = np.array([row.scores[score] for row in rows])
+                spread = Spread.of([row.scores[score] for row in rows])
                 table.append({"suite": r.suite, "version": r.version, "task": r.task, "mode": mode,
-                              "entry": shown[r.where], "code": r.code, "score": score, "mean": float(values.mean()),
-                              "std": float(values.std(ddof=1)) if len(values) > 1 else None,
-                              "worlds": sorted(row.world for row in rows), "wall_s": r.wall_s})  # fmt: skip
+                              "entry": shown[r.where], "code": r.code, "score": score, "mean": spread.mean,
+                              "std": spread.std, "worlds": sorted(row.world for row in rows),
+                              "wall_s": r.wall_s})  # fmt: skip
     return table
 
 
@@ -168,8 +167,7 @@ def _cell(table: list[dict[str, Any]], entry: str, task: str, mode: str, score: 
 def _shown(cell: dict[str, Any] | None) -> str:
     if cell is None:
         return "—"
-    spread = "" if cell["std"] is None else f" ± {cell['std']:.3g}"
-    return f"{cell['mean']:.3g}{spread}"
+    return as_cell(cell["mean"], cell["std"])
 
 
 def markdown(table: list[dict[str, Any]], results: list[Result], head: dict[str, Any]) -> str:

@@ -122,18 +122,7 @@ def run_bench(
     """Every entry on every task (each resumed where it stopped); returns the task folders. Every
     refusal (an entry, a task, the folders, an earlier result, a model's contract) comes before
     anything is generated or written."""
-    for entry in entries:
-        entry.check()
-    for task in suite.tasks:
-        check_task(suite, task)
-    lake, out = open_store(lake), open_store(out)
-    check_folders(lake, out)
-    _check_earlier(suite, entries, out, overwrite, workers)
-    for task in suite.tasks:
-        _check_lake(lake, suite, task, missing_ok=True)  # a lake of another suite's sizes: before generation
-        for entry in entries:
-            if entry.learns:
-                check_entry_model(task, entry)
+    lake, out = _refusals(suite, entries, lake, out, workers, overwrite)
     remove_stale_temporaries()
     done = []
     for task in suite.tasks:  # task by task: a leaderboard fills a column at a time
@@ -158,6 +147,28 @@ def run_bench(
                 _end(folder, session, time.monotonic() - clock, "ended")
             done.append(folder)
     return done
+
+
+def _refusals(
+    suite: Suite, entries: list[Entry], lake: Store | str, out: Store | str, workers: int, overwrite: bool
+) -> tuple[Store, Store]:
+    """Every refusal a bench (or its dry run) makes before anything is generated or written: an
+    entry not in its canonical form, a task whose datasets this smspace configures otherwise, the
+    folders, an earlier result made on other terms, a lake of another suite's sizes, a model's
+    contract. Returns the lake and out opened."""
+    for entry in entries:
+        entry.check()
+    for task in suite.tasks:
+        check_task(suite, task)
+    lake, out = open_store(lake), open_store(out)
+    check_folders(lake, out)
+    _check_earlier(suite, entries, out, overwrite, workers)
+    for task in suite.tasks:
+        _check_lake(lake, suite, task, missing_ok=True)
+        for entry in entries:
+            if entry.learns:
+                check_entry_model(task, entry)
+    return lake, out
 
 
 def check_folders(lake: Store, out: Store) -> None:
@@ -213,21 +224,10 @@ def plan_bench(
     here and now, study/budget.py), and the whole bench's time, generation included. Writes nothing."""
     from smspace.study.runner import plan_generation, plan_study
 
-    for entry in entries:
-        entry.check()
-    for task in suite.tasks:
-        check_task(suite, task)
-    lake, out = open_store(lake), open_store(out)
-    check_folders(lake, out)
-    _check_earlier(suite, entries, out, overwrite, workers)
-    for task in suite.tasks:
-        for entry in entries:
-            if entry.learns:
-                check_entry_model(task, entry)
+    lake, out = _refusals(suite, entries, lake, out, workers, overwrite)
     lines, total_s = [], 0.0
     lines += busy_cores_note()
     for task in suite.tasks:
-        _check_lake(lake, suite, task, missing_ok=True)
         generate_s, _, line = plan_generation(task.setup, task.world_seeds, task.modes, task.transitions, lake,
                                               gen_workers or workers)  # fmt: skip
         lines.append(f"{suite.label} task {task.name}: {line}")
@@ -291,7 +291,7 @@ def _train(
     runs = run_study(task_request(task, entry), lake, folder, overwrite, workers, gen_workers, executor, notify)
     rows = []
     for run in runs:
-        row, h = run_scores(run.view, task.steps)
+        row, h = run_scores(run.view, task.steps, lake)
         rows.append(_scored(folder, task, row, h, lake))
     return rows
 

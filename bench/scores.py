@@ -8,17 +8,20 @@ from typing import Any
 import numpy as np
 
 from smspace.common.errors import SmspaceError
-from smspace.lake.manifest import parse_dataset_id
+from smspace.lake.dataset import Dataset
+from smspace.lake.store import Store
 from smspace.train.run_dir import RunView
 
 
-def run_scores(run: RunView, steps: int) -> tuple[dict[str, Any], np.ndarray]:
+def run_scores(run: RunView, steps: int, lake: Store) -> tuple[dict[str, Any], np.ndarray]:
     """A trained run's row (its world, mode, step and wall time) and the h its scores are computed
-    from: that of its last evaluation, which must be the task's last step."""
+    from: that of its last evaluation, which must be the task's last step. The world and mode are
+    those its dataset's manifest records it was generated with, never read back from a name."""
     rows = run.metrics()
     last = rows[-1]
     if last["step"] != steps:
         raise SmspaceError(f"{run.name} ended at step {last['step']}, not the task's {steps}")
     h, _ = run.embeddings(last["step"])
-    _, world, mode = parse_dataset_id(run.config.dataset_id)
-    return {"world": world, "mode": mode, "step": last["step"], "wall_s": last["elapsed_s"], "run": run.name}, h
+    made = Dataset.open(run.config.dataset_id, lake).manifest
+    row = {"world": made.world_seed, "mode": made.mode, "step": last["step"], "wall_s": last["elapsed_s"]}
+    return row | {"run": run.name}, h

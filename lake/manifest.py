@@ -41,13 +41,6 @@ def dataset_id(setup: str, world_seed: int, mode: str) -> str:
     return f"{setup}-seed{world_seed}-{mode}"
 
 
-def parse_dataset_id(name: str) -> tuple[str, int, str]:
-    """dataset_id's inverse: setup-seedW-MODE -> (setup, W, MODE)."""
-    head, mode = name.rsplit("-", 1)
-    setup, seed = head.rsplit("-seed", 1)
-    return setup, int(seed), mode
-
-
 @dataclass(frozen=True)
 class GenConfig:
     """Everything a dataset's bytes depend on (the worker count is deliberately absent)."""

@@ -147,6 +147,7 @@ def test_sweep_generates_trains_resumes_and_reports(tmp_path):
         first = next(csv.DictReader(fh))
     mem = [RunView.open(f).metrics()[-1]["d_metric"] for f in folders if "-MEM-" in f.name]
     assert float(first["d_metric_mean"]) == pytest.approx(np.mean(mem))
+    assert float(first["d_metric_std"]) == pytest.approx(np.std(mem, ddof=1))  # the leaderboard's spread too
     assert "| grid-nh3-steps60 | grid | 3 | MME | 2 | 60 |" in (report / "final.md").read_text()
 
 

@@ -160,3 +160,19 @@ def test_local_pca_reads_a_lattices_dimension_where_two_nn_diverges():
     assert local_pca_dimension(np.repeat(plane, 3, axis=0)) == 2.0  # duplicates merged
     with pytest.raises(ValueError, match="3 distinct points"):
         local_pca_dimension(np.zeros((10, 3)))
+
+
+def test_a_spread_over_worlds_is_the_sample_standard_deviation_and_none_for_one_world():
+    """metrics/spread.py: the one summary `smtrain report` and the leaderboard give (ddof 1)."""
+    from smspace.metrics.spread import Spread, along, as_cell
+
+    spread = Spread.of([1.0, 2.0, 4.0])
+    assert spread.mean == pytest.approx(7 / 3) and spread.std == pytest.approx(np.std([1, 2, 4], ddof=1))
+    assert spread.count == 3 and as_cell(spread.mean, spread.std) == "2.33 ± 1.5"
+    one = Spread.of([0.125])
+    assert one.std is None and as_cell(one.mean, one.std) == "0.125"  # no "± 0" claiming a spread
+    mean, std = along(np.array([[1.0, 2.0], [3.0, 6.0]]))
+    assert mean.tolist() == [2.0, 4.0] and std == pytest.approx([np.sqrt(2), np.sqrt(8)])
+    assert along(np.array([[1.0, 2.0]]))[1].tolist() == [0.0, 0.0]
+    with pytest.raises(ValueError, match="one or more values"):
+        Spread.of([])

@@ -20,6 +20,7 @@ from smspace.lake.normalise import normalisers
 from smspace.lake.store import StorageUnreachable
 from smspace.metrics import affine_projection
 from smspace.metrics.scores import SCORES
+from smspace.metrics.spread import Spread, along, as_cell
 from smspace.train.colours import position_colours
 from smspace.train.pages import record_files, recorded_files, refuse_inside
 from smspace.train.run_dir import RunView
@@ -218,7 +219,7 @@ def curves_figure(study: Study, path: Path) -> None:
             values = np.stack([r.values(key, study.steps) for r in runs])
             for v in values:
                 ax.plot(steps, v, color=colour, alpha=0.15, linewidth=0.7)
-            mean, std = values.mean(0), values.std(0)
+            mean, std = along(values)
             legend = f"{mode} (mean of {len(runs)} run(s) ± std)"
             (line,) = ax.plot(steps, mean, color=colour, linewidth=2, label=legend)
             handles.append(line)
@@ -264,7 +265,7 @@ def comparison_figure(studies: list[Study], variable: str, path: Path) -> None:
         x = st.value(variable) if numeric else values.index(json.dumps(st.value(variable), sort_keys=True))
         for mode, runs in by_mode(st.runs).items():
             finals = np.array([[r.values(k, [st.final_step])[0] for k, _ in METRICS] for r in runs])
-            lines[(mode, rest)].append((float(x), *[(finals[:, i].mean(), finals[:, i].std()) for i in range(3)]))
+            lines[(mode, rest)].append((float(x), *[_mean_and_std(finals[:, i]) for i in range(3)]))
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.8))
     markers, rests = "osD^vP*X", sorted({rest for _, rest in lines})
     for i, (ax, (key, label)) in enumerate(zip(axes, METRICS, strict=True)):
@@ -446,8 +447,8 @@ def final_table(study: Study, variables: Sequence[str] = ()) -> list[dict[str, A
         row: dict[str, Any] = {"study": study.name, "setup": runs[0].setup, "n_h": runs[0].n_h, "mode": mode}
         row |= {"runs": len(runs), "step": study.final_step} | {v: cell(study.value(v)) for v in variables}
         for key, _ in METRICS:
-            values = np.array([r.values(key, [study.final_step])[0] for r in runs])
-            row[f"{key}_mean"], row[f"{key}_std"] = float(values.mean()), float(values.std())
+            spread = Spread.of([r.values(key, [study.final_step])[0] for r in runs])
+            row[f"{key}_mean"], row[f"{key}_std"] = spread.mean, spread.std
         table.append(row)
     return table
 
@@ -458,9 +459,10 @@ def _metric_columns() -> str:
     return " | ".join(f"{title} {SCORES[key].arrow}" if key in SCORES else title for key, title in METRICS)
 
 
-def _mean_std(mean: float, std: float, runs: int) -> str:
-    """One run has no spread to show; "± 0" would claim one."""
-    return f"{mean:.3g}" if runs == 1 else f"{mean:.3g} ± {std:.2g}"
+def _mean_and_std(values: np.ndarray) -> tuple[float, float]:
+    """For an error bar: one world draws none."""
+    spread = Spread.of(values)
+    return spread.mean, spread.std or 0.0
 
 
 def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path, variables: Sequence[str] = ()) -> None:
@@ -483,7 +485,7 @@ def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path, v
         "|---|---|---|---|---|---|" + "---|" * len(variables) + "---|---|---|",
     ]
     for row in table:
-        cells = [_mean_std(row[f"{k}_mean"], row[f"{k}_std"], row["runs"]) for k, _ in METRICS]
+        cells = [as_cell(row[f"{k}_mean"], row[f"{k}_std"]) for k, _ in METRICS]
         head = f"| {row['study']} | {row['setup']} | {row['n_h']} | {row['mode']} | {row['runs']} | {row['step']} | "
         head += "".join(f"{_md(row[v])} | " for v in variables)
         lines.append(head + " | ".join(cells) + " |")
@@ -585,7 +587,7 @@ def markdown_report(
         lines += [f"## {study.name}: {study.label}", ""]
         lines += [f"| mode | runs | step | {_metric_columns()} |", "|---|---|---|---|---|---|"]
         for row in (r for r in table if r["study"] == study.name):
-            cells = [_mean_std(row[f"{k}_mean"], row[f"{k}_std"], row["runs"]) for k, _ in METRICS]
+            cells = [as_cell(row[f"{k}_mean"], row[f"{k}_std"]) for k, _ in METRICS]
             lines.append(f"| {row['mode']} | {row['runs']} | {row['step']} | " + " | ".join(cells) + " |")
         lines += ["", "Mean ± standard deviation over the runs (one world each) at the last step all reached.", ""]
         for figure in figures[study.name]:
