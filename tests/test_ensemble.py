@@ -68,7 +68,7 @@ def test_an_ensemble_starts_from_the_lone_runs_weights_and_repeats_bit_for_bit(t
         train_ensemble(runs, progress=False)
         twice.append(runs)
     for a, b in zip(*twice, strict=True):
-        ma, mb = a.metrics(), b.metrics()
+        ma, mb = a.view.metrics(), b.view.metrics()
         for row in (*ma, *mb):
             row.pop("elapsed_s")
         assert json.dumps(ma) == json.dumps(mb)
