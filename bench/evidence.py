@@ -53,7 +53,7 @@ def load(folder: Store, name: str, digest: str, shape: tuple[int, int]) -> np.nd
         size = evidence.size(name)
         if size > limit:
             raise SmspaceError(f"{where}: {size} bytes, more than h of {shape[0]} states x {shape[1]} needs")
-        data = evidence.read_bytes(name)
+        data = evidence.read(name)
     except FileNotFoundError:
         raise SmspaceError(f"{where} is missing: the result carries no evidence for its scores") from None
     except OSError as e:

@@ -25,7 +25,7 @@ from smspace.bench.suite import get_suite
 from smspace.bench.verify import NotScored, Result, verify
 from smspace.common.errors import SmspaceError
 from smspace.lake import scan
-from smspace.lake.store import Store, open_store
+from smspace.lake.store import Store, canonical, open_store
 from smspace.metrics.scores import SCORES
 from smspace.metrics.spread import Spread, as_cell
 from smspace.train.pages import record_files, recorded_files, refuse_inside, write_atomically
@@ -47,9 +47,9 @@ def find_results(paths: list[str | Path], left_out: list[str] | None = None) -> 
             raise SmspaceError(f"{store.url} holds no benchmark result ({BENCH}) within {scan.MAX_DEPTH} folders")
         for name in names:
             folder = scan.descend(store, name)
-            if folder.canonical() in seen:
+            if canonical(folder) in seen:
                 continue
-            seen.add(folder.canonical())
+            seen.add(canonical(folder))
             where = "/".join([str(path).rstrip("/"), *filter(None, name.split("/"))])  # as given: a leaderboard moves
             try:
                 found.append(verify(folder, where))

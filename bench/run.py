@@ -36,7 +36,7 @@ from smspace.common.provenance import cpu, git_commit, version
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import dataset_id
 from smspace.lake.records import BENCH_RESULT, BENCH_SCORES, UnknownFormat
-from smspace.lake.store import Store, open_store, within
+from smspace.lake.store import Store, exists, listing, open_store, within
 from smspace.metrics.scores import scores_of
 
 BENCH = BENCH_RESULT.file
@@ -272,7 +272,7 @@ def _folder(out: Store, suite: Suite, task: Task, entry: Entry) -> Store:
 def _check_lake(lake: Store, suite: Suite, task: Task, missing_ok: bool = False) -> None:
     """What was trained on is what the suite fixed: each dataset's recorded config hash."""
     for name, expected in task.datasets().items():
-        if missing_ok and not lake.child(name).exists("manifest.json"):
+        if missing_ok and not exists(lake.child(name), "manifest.json"):
             continue
         found = Dataset.open(name, lake).manifest.config_hash
         if found != expected:
@@ -375,7 +375,7 @@ def _earlier(folder: Store, made: BenchRecord, overwrite: bool) -> BenchRecord |
     """The result already in `folder` (None: none, or --overwrite), refused if it was made on other
     terms (another code of the entry, another protocol): its sessions would not describe this
     result. A result of another entry is never replaced, --overwrite or not."""
-    if not folder.exists(BENCH):
+    if not exists(folder, BENCH):
         return None
     try:
         before = BenchRecord.read(folder)
@@ -432,7 +432,7 @@ def _begin(folder: Store, suite: Suite, task: Task, entry: Entry, workers: int, 
 def _forget_scores(folder: Store) -> None:
     folder.delete(SCORES)
     proof = folder.child(evidence.EVIDENCE)
-    for name in proof.list("*"):
+    for name in listing(proof, "*"):
         proof.delete(name)
 
 

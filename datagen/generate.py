@@ -37,7 +37,7 @@ from smspace.lake.manifest import (
     load_manifest,
     software_versions,
 )
-from smspace.lake.store import Store
+from smspace.lake.store import Store, exists, free_bytes, listing, remove_partials
 
 LOCKS = ".locks"  # lake/.locks/<dataset id>.lock: held while that dataset is generated (local lakes)
 
@@ -83,7 +83,7 @@ def _recorded(folder: Store) -> tuple[str, dict] | None:
         problem = ""
         for _ in range(READ_ATTEMPTS):
             try:
-                raw = json.loads(folder.read_bytes(name))
+                raw = json.loads(folder.read(name))
                 return raw["config_hash"], raw["config"] if isinstance(raw.get("config"), dict) else {}
             except (FileNotFoundError, NotADirectoryError):
                 break
@@ -110,9 +110,9 @@ def _what_changed(recorded: dict, cfg: GenConfig) -> str:
 
 
 def _clear_dataset(folder: Store) -> None:
-    for name in [MANIFEST, GENERATION, REGULAR_FILE, *folder.list("shard-*.mcap")]:
+    for name in [MANIFEST, GENERATION, REGULAR_FILE, *listing(folder, "shard-*.mcap")]:
         folder.delete(name)
-    folder.remove_partials()
+    remove_partials(folder)
 
 
 def damaged_files(folder: Store) -> list[tuple[str, str]]:
@@ -141,7 +141,7 @@ def plan_dataset(
                 f"{f' ({changed})' if changed else ''}; pass --overwrite to replace it, or choose another --lake"
             )
         _clear_dataset(folder)
-    elif recorded is not None and folder.exists(MANIFEST):
+    elif recorded is not None and exists(folder, MANIFEST):
         damaged = damaged_files(folder)
         if not damaged:
             return Plan(cfg, folder, [], {}, complete=True)
@@ -154,7 +154,7 @@ def plan_dataset(
         folder.delete(MANIFEST)
     folder.make()
     if share.whole:  # ranks of an array run side by side: none may delete another's temporary files
-        folder.remove_partials()
+        remove_partials(folder)
     folder.put(GENERATION, json.dumps({"config": cfg.to_dict(), "config_hash": cfg.config_hash}).encode())
     mine = [p for p in parts_of(cfg) if share.owns(p)]
     found = {p: r for p in mine if (r := verify_part(cfg, folder, p)) is not None}
@@ -256,7 +256,7 @@ def _check_disk(lake: Store, configs: list[GenConfig], bytes_per_transition: int
     the shards not yet present (a resume needs little), with a margin for the files around them.
     One listing per dataset, never a request per shard: a dataset may have millions. Object storage
     has no such limit to check."""
-    free = lake.free_bytes()
+    free = free_bytes(lake)
     if free is None:
         return
     missing = sum(_missing_transitions(cfg, lake.child(cfg.dataset_id), share) for cfg in configs)
@@ -346,14 +346,14 @@ def finalize(lake: Store | str, folders: list[Store]) -> list[tuple[Manifest, bo
     lake = make_lake(check_lake(lake))
     ready = []
     for folder in folders:
-        if folder.exists(MANIFEST):
+        if exists(folder, MANIFEST):
             ready.append((folder, None, None))
             continue
         try:
-            raw = json.loads(folder.read_bytes(GENERATION))
+            raw = json.loads(folder.read(GENERATION))
             cfg = GenConfig.from_record(raw["config"], f"{folder}/{GENERATION}")
         except FileNotFoundError:
-            if folder.exists(MANIFEST):  # another finalize committed it (and removed the record) meanwhile
+            if exists(folder, MANIFEST):  # another finalize committed it (and removed the record) meanwhile
                 ready.append((folder, None, None))
                 continue
             raise SmspaceError(f"{folder} has no generation to finalize (no {GENERATION})") from None
@@ -365,7 +365,7 @@ def finalize(lake: Store | str, folders: list[Store]) -> list[tuple[Manifest, bo
             if record is None:
                 what = (
                     "not written yet (its rank is still running, or failed)"
-                    if not folder.exists(part_file(part))
+                    if not exists(folder, part_file(part))
                     else "invalid (corrupt, or of another config)"
                 )
                 raise SmspaceError(f"cannot finalize {cfg.dataset_id}: {part_file(part)} is {what}; re-run its rank")

@@ -143,7 +143,7 @@ def verify_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord | None:
     back whole: every chunk CRC checked and every batch decoded, so a damaged part is redone."""
     name = part_file(part)
     try:
-        data = folder.read_bytes(name)
+        data = folder.read(name)
     except StorageUnreachable:
         raise  # not "absent": the endpoint is gone, and so is this command
     except (FileNotFoundError, SmspaceError):

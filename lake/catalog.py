@@ -75,7 +75,7 @@ def _scan(lake: Store, ids: list[str]) -> tuple[list[Manifest], dict[str, str], 
     for dataset_id in ids:
         folder = lake.child(dataset_id)
         try:
-            data = folder.read_bytes(MANIFEST)
+            data = folder.read(MANIFEST)
         except FileNotFoundError:  # deleted since the listing (a repair under way): not known either way
             gone.add(dataset_id)
             continue
@@ -145,7 +145,7 @@ def read_catalog(lake: Path | str | Store, versions: dict[str, str] | None = Non
         return CATALOG_SCHEMA.empty_table()
     versions = manifest_versions(lake) if versions is None else versions
     try:
-        table = parquet.read_table(lake.read_bytes(CATALOG))  # lake/parquet.py: no abort at exit
+        table = parquet.read_table(lake.read(CATALOG))  # lake/parquet.py: no abort at exit
         sources = json.loads((table.schema.metadata or {}).get(SOURCES_KEY, b"null"))
         table = table.replace_schema_metadata(None)
         if _cache_holds(table, sources, versions):

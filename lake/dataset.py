@@ -13,7 +13,7 @@ from smspace.common.errors import SmspaceError
 from smspace.lake.integrity import check_file
 from smspace.lake.manifest import GENERATION, MANIFEST, Manifest, load_manifest
 from smspace.lake.shards import Block, ShardReader
-from smspace.lake.store import Store, is_url, open_store
+from smspace.lake.store import Store, exists, is_url, listing, open_store
 from smspace.lake.transitions import Transitions
 
 
@@ -27,7 +27,7 @@ def lake_store(ref: Any) -> Store:
 
 
 def _is_dataset(store: Store) -> bool:
-    return store.exists(MANIFEST) or store.exists(GENERATION) or bool(store.list("shard-*"))
+    return exists(store, MANIFEST) or exists(store, GENERATION) or bool(listing(store, "shard-*"))
 
 
 def resolve_dataset(ref: str | Path | Store, lake: str | Path | Store | None = None) -> Store:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 from smspace.common.errors import DatasetCorrupt
-from smspace.lake.store import Store, TransferFailed
+from smspace.lake.store import Store, TransferFailed, etag, sha256_of
 
 READS = 3  # whole reads of a file that does not match before anything is concluded
 
@@ -30,9 +30,9 @@ def file_problem(store: Store, entry: dict[str, Any]) -> str | None:
     if size != entry["bytes"]:
         return f"{size} bytes, the manifest records {entry['bytes']} (truncated or replaced)"
     md5 = entry.get("md5")
-    if md5 is not None and store.etag(name) == md5:
+    if md5 is not None and etag(store, name) == md5:
         return None
-    if store.sha256(name) != entry["sha256"]:
+    if sha256_of(store, name) != entry["sha256"]:
         return "its bytes differ from the manifest's sha256 (replaced or damaged)"
     return None
 
@@ -57,7 +57,7 @@ def read_verified(
     problem) for a file stored so; raises TransferFailed when the reads never brought the file."""
     seen: list[bytes] = []
     for _ in range(READS):
-        data = store.read_bytes(name)
+        data = store.read(name)
         problem = problem_of(data)
         if problem is None:
             return data, None

@@ -16,7 +16,7 @@ from typing import Any
 from smspace import schemas
 from smspace.common.errors import DatasetCorrupt, SmspaceError
 from smspace.lake.integrity import read_verified
-from smspace.lake.store import Store, open_store
+from smspace.lake.store import Store, exists, open_store
 from smspace.lake.transitions import MODES
 
 MANIFEST = "manifest.json"
@@ -201,7 +201,7 @@ def load_manifest(folder: Path | Store, data: bytes | None = None) -> Manifest:
         try:
             data, problem = read_verified(folder, MANIFEST, _json_problem)
         except (FileNotFoundError, NotADirectoryError):
-            if folder.exists(GENERATION):
+            if exists(folder, GENERATION):
                 incomplete = f"dataset {folder} is incomplete (its generation did not finish): re-run it"
                 raise SmspaceError(incomplete) from None
             raise SmspaceError(f"{folder} is not a dataset (no {MANIFEST})") from None

@@ -92,7 +92,7 @@ class Record:
         size = folder.size(self.file)
         if size > self.max_bytes:
             raise MalformedRecord(where, f"is {size} bytes; a {self.file} is at most {self.max_bytes}")
-        return self.parse(folder.read_bytes(self.file), where)
+        return self.parse(folder.read(self.file), where)
 
     def read(self, folder: Store) -> dict[str, Any]:
         """The record in `folder`, its format checked and removed (FileNotFoundError if absent)."""

@@ -4,7 +4,7 @@
 
 from __future__ import annotations
 
-from smspace.lake.store import Store
+from smspace.lake.store import Store, listing
 
 MAX_DEPTH = 8  # folders below the given one: a study's grid inside a bench's task is 5 deep
 
@@ -20,7 +20,7 @@ def folders_holding(store: Store, name: str, *, itself: bool = True) -> list[str
     folder (a run's own sub-folders) belongs to it, not a second find."""
     found: list[str] = []
     for pattern in patterns(name, itself=itself):
-        for path in store.list(pattern):
+        for path in listing(store, pattern):
             folder = path.rsplit("/", 1)[0] if "/" in path else ""
             if not any(f == "" or folder == f or folder.startswith(f + "/") for f in found):
                 found.append(folder)

@@ -206,7 +206,7 @@ class ShardReader:
         start, n = offset + CHUNK_PREFIX, length - CHUNK_PREFIX
         if self._data is not None:
             return self._data[start : start + n]
-        return self.store.read_range(self.name, start, n)
+        return self.store.read(self.name, start, n)
 
     def _raw(self, starting_at: int | None = None, ending_before: int | None = None) -> Iterator[bytes]:
         low = -1 if starting_at is None else starting_at

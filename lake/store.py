@@ -22,7 +22,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from smspace.common.atomic import create_exclusive, remove_partials, sha256_file, write_atomic
+from smspace.common.atomic import create_exclusive, write_atomic
+from smspace.common.atomic import remove_partials as remove_partial_files
 from smspace.common.errors import DatasetCorrupt, SmspaceError, one_line
 from smspace.common.locks import HeldLock, hold_lock
 
@@ -50,7 +51,13 @@ def check_name(folder: str, name: str) -> None:
 
 
 class Store(ABC):
-    """One folder of a lake; every name is a plain file name in it (no '/')."""
+    """One folder of a lake; every name is a plain file name in it (no '/').
+
+    What a kind of storage must do, and no more: name a sub-folder, tell a file's size, read it
+    (whole, a range, or as a file object), list files with a version tag, write a file whole
+    (unconditionally, only if absent, only if still at a version), delete one, lock one, make the
+    folder and say what its own name holds. Everything else (whether a file exists, a listing, a
+    hash, a folder's tidying) is built on these by the functions below, once for every kind."""
 
     url: str
 
@@ -75,22 +82,6 @@ class Store(ABC):
         """The folder on this machine, or None for a folder on object storage."""
         return None
 
-    @property
-    def where(self) -> Path | str:
-        """The folder as messages and listings show it: a Path locally, else its URL."""
-        return self.local_path or self.url
-
-    def canonical(self) -> str:
-        """How a record (a run's config) names the folder: an absolute path, or the URL."""
-        return self.url
-
-    def entries(self) -> list[str]:
-        """Every name in the folder (files; and sub-folders where the store has folders)."""
-        return self.list("*")
-
-    def remove_folder(self) -> None:  # noqa: B027 - object storage has no folders to remove
-        """Remove the (emptied) folder itself where folders exist."""
-
     @abstractmethod
     def child(self, name: str) -> Store: ...
 
@@ -110,23 +101,14 @@ class Store(ABC):
     def size(self, name: str) -> int:
         """Bytes of a regular file; FileNotFoundError when absent, DatasetCorrupt when not regular."""
 
-    def exists(self, name: str) -> bool:
-        try:
-            self.size(name)
-        except (FileNotFoundError, DatasetCorrupt):
-            return False
-        return True
+    @abstractmethod
+    def read(self, name: str, start: int = 0, length: int | None = None) -> bytes:
+        """The whole file, or bytes [start, start + length): one request on object storage."""
 
     @abstractmethod
-    def read_bytes(self, name: str) -> bytes: ...
-
-    @abstractmethod
-    def read_range(self, name: str, start: int, length: int) -> bytes:
-        """Bytes [start, start + length): one request on object storage."""
-
-    @abstractmethod
-    def open(self, name: str) -> BinaryIO:
-        """A seekable reader (for an MCAP summary); small reads come from READ_BLOCK-sized requests."""
+    def open(self, name: str, sequential: bool = False) -> BinaryIO:
+        """A reader: seekable, small reads from READ_BLOCK-sized requests (an MCAP summary); or,
+        `sequential`, one with large requests (hashing, whole-file reads)."""
 
     @abstractmethod
     def put(self, name: str, data: bytes) -> str | None:
@@ -152,25 +134,6 @@ class Store(ABC):
         """{relative path: version tag} of the files matching a glob such as '*/manifest.json'; the
         tag changes whenever the file is rewritten (ETag on S3, size and mtime locally)."""
 
-    def list(self, pattern: str) -> list[str]:
-        return sorted(self.fingerprints(pattern))
-
-    def sha256(self, name: str) -> str:
-        h = hashlib.sha256()
-        with self.open_stream(name) as fh:
-            for block in iter(lambda: fh.read(1 << 22), b""):
-                h.update(block)
-        return h.hexdigest()
-
-    @abstractmethod
-    def open_stream(self, name: str) -> BinaryIO:
-        """A sequential reader with large requests (hashing, whole-file reads)."""
-
-    def etag(self, name: str) -> str | None:
-        """The MD5 of a file written by one PUT, as object storage reports it; None where there is
-        no such witness (local files, multipart uploads)."""
-        return None
-
     def lock(self, name: str, busy: str, wait: bool = False) -> HeldLock:
         """An exclusive lock on a file of the folder, held until released (or a `with` block
         ends): if another process holds it, wait (`wait`) or refuse at once with `busy`. Where the
@@ -178,12 +141,77 @@ class Store(ABC):
         writes instead."""
         return HeldLock(None)
 
-    def remove_partials(self) -> None:  # noqa: B027 - deliberately nothing to do by default
-        """Drop what killed writers left; object storage never has partial objects."""
 
-    def free_bytes(self) -> int | None:
-        """Free space for new files, or None where there is no such limit to check."""
+# --- built on the store's own operations, the same for every kind --------------------------------
+
+
+def exists(store: Store, name: str) -> bool:
+    """Whether `name` is a regular file of the folder."""
+    try:
+        store.size(name)
+    except (FileNotFoundError, DatasetCorrupt):
+        return False
+    return True
+
+
+def listing(store: Store, pattern: str) -> list[str]:
+    """The files matching a glob, sorted."""
+    return sorted(store.fingerprints(pattern))
+
+
+def sha256_of(store: Store, name: str) -> str:
+    h = hashlib.sha256()
+    with store.open(name, sequential=True) as fh:
+        for block in iter(lambda: fh.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def where(store: Store) -> Path | str:
+    """The folder as messages and listings show it: a Path locally, else its URL."""
+    return store.local_path or store.url
+
+
+def canonical(store: Store) -> str:
+    """How a record (a run's config) names the folder: an absolute path, or the URL."""
+    local = store.local_path
+    return str(local.resolve()) if local is not None else store.url
+
+
+def entries(store: Store) -> list[str]:
+    """Every name in the folder: files, and sub-folders where the store has folders."""
+    local = store.local_path
+    if local is None:
+        return listing(store, "*")
+    return [p.name for p in local.iterdir()] if local.is_dir() else []
+
+
+def etag(store: Store, name: str) -> str | None:
+    """The MD5 of a file written by one PUT, as object storage reports it; None where there is no
+    such witness (local files, multipart uploads)."""
+    return store.etag(name) if isinstance(store, RemoteStore) else None
+
+
+def remove_partials(store: Store) -> None:
+    """Drop what killed writers left; object storage never has partial objects."""
+    if store.local_path is not None:
+        remove_partial_files(store.local_path)
+
+
+def remove_folder(store: Store) -> None:
+    """Remove an emptied folder itself, where folders exist (object storage has none)."""
+    if isinstance(store, LocalStore):
+        store.remove_folder()
+
+
+def free_bytes(store: Store) -> int | None:
+    """Free space for new files, or None where there is no such limit to check (object storage)."""
+    probe = store.local_path
+    if probe is None:
         return None
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return shutil.disk_usage(probe).free
 
 
 class LocalStore(Store):
@@ -213,12 +241,6 @@ class LocalStore(Store):
     @property
     def local_path(self) -> Path:
         return self.path
-
-    def canonical(self) -> str:
-        return str(self.path.resolve())
-
-    def entries(self) -> list[str]:
-        return [p.name for p in self.path.iterdir()] if self.path.is_dir() else []
 
     def remove_folder(self) -> None:
         self._refuse_links()
@@ -255,20 +277,17 @@ class LocalStore(Store):
     def size(self, name: str) -> int:
         return self.file(name).stat().st_size
 
-    def read_bytes(self, name: str) -> bytes:
-        return self.file(name).read_bytes()
-
-    def read_range(self, name: str, start: int, length: int) -> bytes:
+    def read(self, name: str, start: int = 0, length: int | None = None) -> bytes:
+        if start == 0 and length is None:
+            return self.file(name).read_bytes()
         with open(self.file(name), "rb") as fh:
+            if length is None:
+                fh.seek(start)
+                return fh.read()
             return os.pread(fh.fileno(), length, start)
 
-    def open(self, name: str) -> BinaryIO:
+    def open(self, name: str, sequential: bool = False) -> BinaryIO:
         return open(self.file(name), "rb")
-
-    open_stream = open
-
-    def sha256(self, name: str) -> str:
-        return sha256_file(self.file(name))
 
     def put(self, name: str, data: bytes) -> None:
         check_name(self.url, name)
@@ -296,15 +315,6 @@ class LocalStore(Store):
     def lock(self, name: str, busy: str, wait: bool = False) -> HeldLock:
         self._refuse_links()
         return hold_lock(self.path / name, busy, wait)
-
-    def remove_partials(self) -> None:
-        remove_partials(self.path)
-
-    def free_bytes(self) -> int | None:
-        probe = self.path
-        while not probe.exists() and probe != probe.parent:
-            probe = probe.parent
-        return shutil.disk_usage(probe).free
 
 
 class RemoteStore(Store):
@@ -357,14 +367,13 @@ class RemoteStore(Store):
             raise DatasetCorrupt(f"{self.url}/{name}: not a file")
         return int(info["size"])
 
-    def read_bytes(self, name: str) -> bytes:
+    def read(self, name: str, start: int = 0, length: int | None = None) -> bytes:
         key = self._key(name)
-        # fresh: s3fs sizes a whole-object read from its listing cache, which another writer outdates
-        return self._transfer(name, lambda: (self.fs.invalidate_cache(key), self.fs.cat_file(key))[1])
-
-    def read_range(self, name: str, start: int, length: int) -> bytes:
-        key = self._key(name)
-        return self._transfer(name, lambda: self.fs.cat_file(key, start=start, end=start + length))
+        if start == 0 and length is None:
+            # fresh: s3fs sizes a whole-object read from its listing cache, which another writer outdates
+            return self._transfer(name, lambda: (self.fs.invalidate_cache(key), self.fs.cat_file(key))[1])
+        end = None if length is None else start + length
+        return self._transfer(name, lambda: self.fs.cat_file(key, start=start, end=end))
 
     def _transfer(self, name: str, fetch: Callable[[], bytes]) -> bytes:
         """A read, tried again when the transfer itself failed (a checksum mismatch, a truncated
@@ -387,13 +396,10 @@ class RemoteStore(Store):
             info = self.fs.info(key, refresh=True)
         return _md5_etag(info.get("ETag") or info.get("etag"))
 
-    def open(self, name: str) -> BinaryIO:
+    def open(self, name: str, sequential: bool = False) -> BinaryIO:
+        block = 1 << 24 if sequential else READ_BLOCK
         with remote_errors(self.url, self.fs):
-            return self.fs.open(self._key(name), "rb", block_size=READ_BLOCK, cache_type="readahead")
-
-    def open_stream(self, name: str) -> BinaryIO:
-        with remote_errors(self.url, self.fs):
-            return self.fs.open(self._key(name), "rb", block_size=1 << 24, cache_type="readahead")
+            return self.fs.open(self._key(name), "rb", block_size=block, cache_type="readahead")
 
     def put(self, name: str, data: bytes) -> str | None:
         return self._put(name, data)

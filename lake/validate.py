@@ -11,7 +11,7 @@ from smspace.common.errors import SmspaceError
 from smspace.lake.integrity import content_problem, read_verified
 from smspace.lake.manifest import load_manifest
 from smspace.lake.shards import ShardReader
-from smspace.lake.store import StorageUnreachable, Store, open_store
+from smspace.lake.store import StorageUnreachable, Store, etag, open_store
 
 
 class _ModeCheck:
@@ -74,7 +74,7 @@ def _fetch(folder: Store, entry: dict) -> tuple[bytes | None, list[str]]:
     match the manifest, lake/integrity.py) with what is wrong with them; None and why if unread."""
     try:
         name, md5 = entry["file"], entry.get("md5")
-        vouched = lambda: md5 is not None and folder.etag(name) == md5  # noqa: E731 - the store's witness
+        vouched = lambda: md5 is not None and etag(folder, name) == md5  # noqa: E731 - the store's witness
         data, problem = read_verified(folder, name, lambda d: content_problem(d, entry), vouched)
     except FileNotFoundError:
         return None, ["missing"]

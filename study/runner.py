@@ -22,7 +22,7 @@ from smspace.datagen.generate import check_disk
 from smspace.datagen.setups import get_setup
 from smspace.lake.manifest import dataset_id
 from smspace.lake.records import STUDY_FILE, MalformedRecord
-from smspace.lake.store import Store, open_store
+from smspace.lake.store import Store, exists, free_bytes, open_store
 from smspace.study import budget
 from smspace.study.budget import SetupProbe, makespan
 from smspace.study.file import RECORD, SOURCE, StudyFile, StudyRequest, changes, folder_name
@@ -234,7 +234,7 @@ def plan_generation(
     spec = get_setup(setup)
     probe = probe or SetupProbe.of(setup, world_seeds[0], modes[0])
     ids = [dataset_id(setup, seed, mode) for seed in world_seeds for mode in modes]
-    missing = [i for i in ids if not lake.child(i).exists("manifest.json")]
+    missing = [i for i in ids if not exists(lake.child(i), "manifest.json")]
     parts = len(missing) * -(-n // spec.default_shard_size)
     lanes = max(1, min(gen_workers, parts))
     worlds_to_build = len({i.rsplit("-", 1)[0] for i in missing})  # each worker builds the worlds it draws from
@@ -347,7 +347,7 @@ def _refuse_what_the_lake_cannot_hold(lake: Store, study: StudyFile, combos: lis
 def _refuse_what_run_folders_cannot_hold(out: Store, run_bytes: float) -> None:
     """A budget of what cannot be stored is no plan: run folders would fill their disk part-way.
     Object storage has no such limit."""
-    out_free = out.free_bytes()
+    out_free = free_bytes(out)
     if out_free is not None and run_bytes > out_free:
         raise SmspaceError(
             f"this study needs about {_size(run_bytes)} of run folders; "
@@ -359,7 +359,7 @@ def _run_state(out: Store, name: str, steps: int, overwrite: bool) -> tuple[str,
     """What the sweep will do with a run: create it (new; a run killed before its first checkpoint
     is created afresh too, as plan_runs does), resume it from its step, or leave it (finished)."""
     where = out.child(name)
-    if overwrite or not where.exists(CONFIG):
+    if overwrite or not exists(where, CONFIG):
         return "new", 0
     step = RunView.open(where).checkpoint_step()
     if step == 0:

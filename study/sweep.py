@@ -28,7 +28,7 @@ from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.manifest import load_manifest
 from smspace.lake.records import SWEEP_STUDY, UnknownFormat
-from smspace.lake.store import StorageUnreachable, Store, open_store, within
+from smspace.lake.store import StorageUnreachable, Store, exists, listing, open_store, within
 from smspace.study.monitor import StudyMonitor, monitored
 from smspace.train.config import TrainConfig, available_memory, memory_needed
 from smspace.train.contract import check_model
@@ -74,7 +74,7 @@ def recorded_study(out: Store) -> dict[str, Any] | None:
     if record is not None:
         return record["terms"]
     found: dict[str, dict[str, Any]] = {}
-    for path in out.list(f"*/{CONFIG}"):
+    for path in listing(out, f"*/{CONFIG}"):
         run = RunDir.open(out.child(path.split("/")[0]))
         recorded = run.view.recorded_keys()
         found[run.name] = {k: v for k, v in terms(run.view.config).items() if k in recorded}
@@ -116,7 +116,7 @@ def plan_runs(
     actions: list[tuple[Store, TrainConfig, tuple[RunDir, TrainConfig | None] | None]] = []
     for cfg in cfgs:
         path = out.child(cfg.run_name)
-        if overwrite or not path.exists(CONFIG):
+        if overwrite or not exists(path, CONFIG):
             actions.append((path, cfg, None))
             continue
         run = RunDir.open(path)

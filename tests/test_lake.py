@@ -12,13 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 
 from smspace.datagen.parts import shard_rng, world_for
 from smspace.datagen.setups import draw_transitions
 from smspace.lake.dataset import Dataset
 from smspace.lake.manifest import GenConfig
 from smspace.lake.shards import ShardReader
-from smspace.lake.store import open_store
+from smspace.lake.store import exists, open_store
 
 from .conftest import BIN, smgen
 
@@ -285,7 +286,78 @@ def test_one_scanner_finds_records_at_any_depth_outermost_only(tmp_path):
         (tmp_path / folder / "config.json").write_text("{}")
     store = open_store(tmp_path)
     assert folders_holding(store, "config.json") == ["a", "bench/v1/entry/task/study/d", "s/b", "s/grid/c"]
-    assert descend(store, "s/grid/c").exists("config.json")
+    assert exists(descend(store, "s/grid/c"), "config.json")
     (tmp_path / "config.json").write_text("{}")
     assert folders_holding(store, "config.json") == [""]
     assert len(folders_holding(store, "config.json", itself=False)) == 4
+
+
+def test_a_new_kind_of_storage_is_the_store_s_few_methods(tmp_path):
+    """lake/store.py: a store implements its abstract methods and nothing else; whether a file
+    exists, listings, hashes, a record's reading and writing are built on them for every kind."""
+    import fnmatch
+    import hashlib
+    import io
+
+    from smspace.lake.records import RUN_STATUS
+    from smspace.lake.store import Store, canonical, entries, free_bytes, listing, sha256_of
+
+    class MemoryStore(Store):
+        def __init__(self, files: dict[str, bytes], url: str = "mem://lake"):
+            self.files, self.url = files, url
+
+        @property
+        def name(self) -> str:
+            return self.url.rsplit("/", 1)[-1]
+
+        def child(self, name: str) -> MemoryStore:
+            return MemoryStore(self.files, f"{self.url}/{name}")
+
+        def is_folder(self) -> bool:
+            return any(k.startswith(self.url + "/") for k in self.files)
+
+        def is_file(self) -> bool:
+            return self.url in self.files
+
+        def make(self) -> None:
+            pass
+
+        def size(self, name: str) -> int:
+            return len(self.files[f"{self.url}/{name}"])
+
+        def read(self, name: str, start: int = 0, length: int | None = None) -> bytes:
+            data = self.files[f"{self.url}/{name}"]
+            return data[start:] if length is None else data[start : start + length]
+
+        def open(self, name: str, sequential: bool = False):
+            return io.BytesIO(self.read(name))
+
+        def put(self, name: str, data: bytes) -> None:
+            self.files[f"{self.url}/{name}"] = data
+
+        def create(self, name: str, data: bytes) -> None:
+            if f"{self.url}/{name}" in self.files:
+                raise FileExistsError(name)
+            self.put(name, data)
+
+        def delete(self, name: str) -> None:
+            self.files.pop(f"{self.url}/{name}", None)
+
+        def fingerprints(self, pattern: str) -> dict[str, str]:
+            prefix = self.url + "/"
+            names = [k[len(prefix) :] for k in self.files if k.startswith(prefix)]
+            return {n: str(len(self.files[prefix + n])) for n in names if fnmatch.fnmatch(n, pattern)}
+
+    store = MemoryStore({})
+    run = store.child("run")
+    RUN_STATUS.write(run, {"state": "created", "step": 0, "message": ""})
+    run.create("checkpoint.pt", b"x" * 10)
+    assert RUN_STATUS.read(run)["state"] == "created" and exists(run, "status.json") and not exists(run, "nope")
+    assert listing(run, "*") == ["checkpoint.pt", "status.json"] == entries(run)
+    assert sha256_of(run, "checkpoint.pt") == hashlib.sha256(b"x" * 10).hexdigest()
+    assert canonical(run) == "mem://lake/run" and free_bytes(run) is None
+    with pytest.raises(FileExistsError):
+        run.create("checkpoint.pt", b"y")
+    abstract = sorted(Store.__abstractmethods__)
+    assert abstract == ["child", "create", "delete", "fingerprints", "is_file", "is_folder", "make", "name", "open",
+                        "put", "read", "size"], abstract  # fmt: skip

@@ -182,7 +182,7 @@ def test_the_commit_is_create_only_on_s3(s3, monkeypatch):
     assert written
     cfg = GenConfig("grid", "MEM", 9, 3000, 1000)
     folder = lake.child(cfg.dataset_id)
-    first = folder.read_bytes("manifest.json")
+    first = folder.read("manifest.json")
     folder.delete("manifest.json")
     plan = plan_dataset(lake, cfg, overwrite=False)
     assert plan.todo == [] and len(plan.found) == 4  # every part found whole and kept
@@ -190,7 +190,7 @@ def test_the_commit_is_create_only_on_s3(s3, monkeypatch):
     assert won and again.shards == manifest.shards
     later, won = commit_dataset(folder, cfg, plan.found)
     assert not won and later.shards == manifest.shards
-    assert json.loads(folder.read_bytes("manifest.json"))["shards"] == json.loads(first)["shards"]
+    assert json.loads(folder.read("manifest.json"))["shards"] == json.loads(first)["shards"]
 
 
 def test_a_small_arm_dataset_on_s3_equals_local(s3, tmp_path):

@@ -15,7 +15,7 @@ from typing import Any
 from smspace.common import plugins
 from smspace.common.errors import SmspaceError
 from smspace.lake.manifest import SEED_MAX  # a run's seed is its world's in a sweep
-from smspace.lake.store import Store, open_store
+from smspace.lake.store import Store, canonical, open_store
 
 # torch, the networks and the precision probe are imported where they are used: the command line
 # builds its flags from this module, and `smtrain --help` or a Tab must not wait for torch
@@ -178,7 +178,7 @@ class TrainConfig:
         records for the setup's agent."""
         return replace(
             self.for_setup(manifest.setup, manifest.transitions, default_encoder_layers(manifest)),
-            dataset=open_store(folder).canonical(),
+            dataset=canonical(open_store(folder)),
             dataset_id=manifest.dataset_id,
             dataset_config_hash=manifest.config_hash,
             dataset_shards_sha256=manifest.shards_digest,

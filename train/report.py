@@ -17,7 +17,7 @@ from smspace.common.differing import differing
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
-from smspace.lake.store import StorageUnreachable
+from smspace.lake.store import StorageUnreachable, exists, where
 from smspace.metrics import affine_projection
 from smspace.metrics.scores import SCORES
 from smspace.metrics.spread import Spread, along, as_cell
@@ -527,13 +527,13 @@ def expand_runs(paths: list[Path | str]) -> list[Path | str]:
         store = open_store(path)
         if store.is_file():
             raise SmspaceError(f"{path} is a file, not a run folder or a study folder")
-        if store.exists(CONFIG):
+        if exists(store, CONFIG):
             found.append(path)
             continue
-        runs = [f"{store.where}/{name}" for name in folders_holding(store, CONFIG, itself=False)]
+        runs = [f"{where(store)}/{name}" for name in folders_holding(store, CONFIG, itself=False)]
         if not runs:
             raise SmspaceError(f"{path} holds no run folders (no {CONFIG} in it or below)")
-        found += [Path(r) if isinstance(store.where, Path) else r for r in runs]
+        found += [Path(r) if isinstance(where(store), Path) else r for r in runs]
     return found
 
 

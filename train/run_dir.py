@@ -23,7 +23,16 @@ from smspace.common import provenance
 from smspace.common.errors import SmspaceError
 from smspace.lake import parquet
 from smspace.lake.records import RUN_CONFIG, RUN_STATUS
-from smspace.lake.store import StorageUnreachable, Store, open_store
+from smspace.lake.store import (
+    StorageUnreachable,
+    Store,
+    entries,
+    exists,
+    listing,
+    open_store,
+    remove_folder,
+    remove_partials,
+)
 from smspace.train import tensorboard
 from smspace.train.claim import LOCK, Claim
 from smspace.train.config import TrainConfig
@@ -92,7 +101,7 @@ class RunView:
     def open(cls, where: Path | str | Store) -> Self:
         run = cls(where)
         try:
-            found = run.store.exists(CONFIG)
+            found = exists(run.store, CONFIG)
         except NotADirectoryError:
             found = False
         if not found:
@@ -108,7 +117,7 @@ class RunView:
         return self._run_id
 
     def _read(self, name: str, store: Store | None = None) -> bytes:
-        return (store or self.store).read_bytes(name)
+        return (store or self.store).read(name)
 
     @property
     def config(self) -> TrainConfig:
@@ -208,7 +217,7 @@ class RunView:
             )
 
     def has_checkpoint(self) -> bool:
-        return self.store.exists(CHECKPOINT)
+        return exists(self.store, CHECKPOINT)
 
     def checkpoint_step(self) -> int:
         """The step of the last checkpoint; 0 when there is none yet."""
@@ -296,7 +305,7 @@ class RunDir:
         run = cls.creatable(where, overwrite)
         run.store.make()
         run.claim()
-        if run.store.exists(CONFIG):
+        if exists(run.store, CONFIG):
             run._clear()
         cfg = replace(cfg, run_id=uuid.uuid4().hex)  # an id, not a draw: nothing computed depends on it
         try:
@@ -318,13 +327,13 @@ class RunDir:
         run = cls(where)
         if run.store.is_file():
             raise SmspaceError(f"output {run.url} is a file, not a folder")
-        if run.store.exists(CONFIG) and not overwrite:
-            if not run.store.exists(CHECKPOINT):
+        if exists(run.store, CONFIG) and not overwrite:
+            if not exists(run.store, CHECKPOINT):
                 raise SmspaceError(
                     f"{run.url} holds a run stopped before its first checkpoint: pass --overwrite to start it again"
                 )
             raise SmspaceError(f"{run.url} already holds a run: pass --resume to continue it or --overwrite")
-        if not overwrite and any(name != LOCK for name in run.store.entries()):
+        if not overwrite and any(name != LOCK for name in entries(run.store)):
             raise SmspaceError(f"{run.url} is not empty and holds no run; choose another --out")
         return run
 
@@ -351,10 +360,10 @@ class RunDir:
             self._delete(name)
         for sub in SUBFOLDERS:
             folder = self.store.child(sub)
-            for name in folder.list("*"):
+            for name in listing(folder, "*"):
                 self._delete(name, sub=sub)
-            folder.remove_folder()
-        self.store.remove_partials()
+            remove_folder(folder)
+        remove_partials(self.store)
 
     # -- status ---------------------------------------------------------------------------
     def set_status(self, state: str, step: int, message: str = "") -> None:
@@ -417,15 +426,15 @@ class RunDir:
 
     def truncate_after(self, step: int) -> None:
         """Drop what evaluations after `step` wrote, and whatever killed writers left half-done."""
-        self.store.remove_partials()
+        remove_partials(self.store)
         folder = self.store.child(EMBEDDINGS)
-        folder.remove_partials()
-        for name in folder.list("*"):
+        remove_partials(folder)
+        for name in listing(folder, "*"):
             match = EVALUATION_FILE.fullmatch(name)
             if match and int(match["step"]) > step:
                 self._delete(name, sub=EMBEDDINGS)
-        self.store.child(tensorboard.FOLDER).remove_partials()
-        if self.store.exists(tensorboard.EVENTS):  # the stream again, without the evaluations dropped
+        remove_partials(self.store.child(tensorboard.FOLDER))
+        if exists(self.store, tensorboard.EVENTS):  # the stream again, without the evaluations dropped
             rows = [row for row in self.view.metrics() if row["step"] <= step]
             self._write(tensorboard.EVENTS, tensorboard.run_events(self._trained_terms(), rows))
 
@@ -453,7 +462,7 @@ class RunDir:
     def roll_back(self, device: str = "cpu") -> dict[str, Any]:
         """The kept previous checkpoint, made the commit record again (this run was one evaluation
         ahead of its ensemble)."""
-        data = self.store.read_bytes(PREVIOUS)
+        data = self.store.read(PREVIOUS)
         self._write(CHECKPOINT, data)
         self._last_checkpoint = data
         return loaded_checkpoint(data, f"{self.url}/{PREVIOUS}", device)
@@ -496,7 +505,7 @@ def after_a_stop(where: str, world: int = 1) -> str:
 
     def look() -> None:
         run = RunView.open(where)
-        found.append((run.store.exists(CHECKPOINT), int(run.status().get("step", 0))))
+        found.append((exists(run.store, CHECKPOINT), int(run.status().get("step", 0))))
 
     run_within([look])
     nproc = f" --nproc {world}" if world > 1 else ""
