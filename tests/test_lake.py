@@ -323,6 +323,8 @@ def test_a_new_kind_of_storage_is_the_store_s_few_methods(tmp_path):
             pass
 
         def size(self, name: str) -> int:
+            if f"{self.url}/{name}" not in self.files:
+                raise FileNotFoundError(f"{self.url}/{name}")  # the contract: absent is this error
             return len(self.files[f"{self.url}/{name}"])
 
         def read(self, name: str, start: int = 0, length: int | None = None) -> bytes:
