@@ -528,7 +528,7 @@ def test_a_write_that_fails_behind_the_steps_stops_the_ensemble_and_is_recorded(
     original = RunDir.write_metrics
 
     def full_disk(self, rows):
-        if rows[-1]["step"] == 20 and self.local_path.name == "r1":
+        if rows[-1]["step"] == 20 and self.name == "r1":
             raise SmspaceError(f"cannot write {self.url}/metrics.parquet: No space left on device")
         original(self, rows)
 
