@@ -319,8 +319,8 @@ def test_a_ray_sweep_writes_its_run_folders_to_s3(s3, tmp_path):
 def test_a_forged_object_on_s3_is_never_trained_on_and_intact_ones_cost_one_head(s3, tmp_path, monkeypatch):
     """The ETag of a single PUT is the MD5 the manifest records: an intact shard is trusted on one
     metadata request (never downloaded whole to hash it), a forged one of the same size is refused."""
+    from smspace.lake import integrity
     from smspace.lake.dataset import Dataset
-    from smspace.lake.store import RemoteStore
 
     from .conftest import SHARD, forged
 
@@ -329,11 +329,11 @@ def test_a_forged_object_on_s3_is_never_trained_on_and_intact_ones_cost_one_head
     for key, value in s3.items():
         monkeypatch.setenv(key, value)
 
-    def no_download(self, name):
-        raise AssertionError(f"{name} was downloaded whole to be hashed")
+    def no_download(store, name):
+        raise AssertionError(f"{store.url}/{name} was downloaded whole to be hashed")
 
     with monkeypatch.context() as patched:
-        patched.setattr(RemoteStore, "sha256", no_download)
+        patched.setattr(integrity, "sha256_of", no_download)
         ds = Dataset(f"{lake}/grid-seed3-MEM")
         assert len(ds.read_all()) == 6000 and len(ds.regular_sampling()[0]) == 125
     fs = s3fs_for(s3)
