@@ -31,6 +31,7 @@ from smspace.bench.suite import Suite, Task, datasets_hash
 from smspace.common.cli import default_workers
 from smspace.common.differing import differing
 from smspace.common.errors import SmspaceError
+from smspace.common.processes import alive
 from smspace.common.progress import duration
 from smspace.common.provenance import cpu, git_commit, version
 from smspace.lake.dataset import Dataset
@@ -202,18 +203,8 @@ def remove_stale_temporaries() -> None:
     folder names the process that made it, and is removed once that process is gone."""
     for path in Path(tempfile.gettempdir()).glob(f"{TEMPORARY}*-*"):
         pid = path.name[len(TEMPORARY) :].split("-", 1)[0]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not alive(int(pid)):
             shutil.rmtree(path, ignore_errors=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def plan_bench(

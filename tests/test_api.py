@@ -71,7 +71,7 @@ def test_a_sink_of_ones_own_sees_each_evaluation_after_the_run_folder_committed_
         smspace.fit("grid-seed0-MM", lake=SAMPLES, out=out, steps=60, eval_every=20, sinks=[sink])
     assert sink.steps == [0, 20, 40]
     status = RunView.open(out).status()
-    assert status["state"] == "failed" and "server is down" in status["message"] and status["step"] == 40
+    assert status.state == "failed" and "server is down" in status.message and status.step == 40
     resumed = smspace.resume(out, sinks=[])
     assert [row["step"] for row in resumed.metrics()] == [0, 20, 40, 60]
 

@@ -290,7 +290,7 @@ def test_a_baseline_with_its_own_objective_trains_on_two_ranks(tmp_path):
     assert done.returncode == 0, done.stderr
     run = RunDir.open(out)
     rows = run.view.metrics()
-    assert run.view.status()["state"] == "finished" and run.view.config.world_size == 2
+    assert run.view.status().state == "finished" and run.view.config.world_size == 2
     assert rows[-1]["train_loss"] < rows[1]["train_loss"], rows
 
 

@@ -50,7 +50,7 @@ def test_two_ranks_train_one_run_with_identical_weights_on_loopback_only(tmp_pat
     assert run.view.config.world_size == 2 and run.view.config.batch_size == 100
     assert [r["step"] for r in run.view.metrics()] == [0, 40, 80, 120]  # written once, by rank 0
     status = run.view.status()
-    assert status["state"] == "finished" and status["message"] == "2 ranks, identical weights at every evaluation"
+    assert status.state == "finished" and status.message == "2 ranks, identical weights at every evaluation"
     assert not [p for p in pids if tree(p)]  # no rank outlives the command
 
 
@@ -116,7 +116,7 @@ def test_a_nan_on_the_ranks_stops_every_rank_at_once(tmp_path):
     lines = [ln for ln in stderr.splitlines() if "error" in ln]
     assert len(lines) == 1 and "NaN" in lines[0], stderr
     status = RunView.open(out).status()
-    assert status["state"] == "failed" and "NaN" in status["message"]
+    assert status.state == "failed" and "NaN" in status.message
 
 
 def signalled_two_rank_run(out, signum: int, pid_of) -> tuple[subprocess.Popen, dict[int, int], str]:
@@ -149,7 +149,7 @@ def test_a_rank_killed_outright_is_named_in_one_line_and_in_the_status(tmp_path,
     assert proc.returncode == 137 and len(lines) == 1 and lines[0].startswith(expected), stderr
     assert lines[0].endswith(f"smtrain fit --resume {out} --nproc 2")
     status = RunView.open(out).status()
-    assert status["state"] == "failed" and status["message"] == lines[0].removeprefix("smtrain: error: ")
+    assert status.state == "failed" and status.message == lines[0].removeprefix("smtrain: error: ")
 
 
 @pytest.mark.parametrize("target", ["launcher", "rank 0", "rank 1"])
@@ -164,7 +164,7 @@ def test_sigterm_to_a_two_rank_run_says_interrupted_once(tmp_path, target):
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
     assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("interrupted"), stderr
     assert "is kept: smtrain fit --resume" in lines[0] and lines[0].endswith(f"{out} --nproc 2"), stderr
-    assert RunView.open(out).status()["state"] == "interrupted"
+    assert RunView.open(out).status().state == "interrupted"
 
 
 @pytest.mark.parametrize(

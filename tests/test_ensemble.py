@@ -104,7 +104,7 @@ def test_sweep_generates_trains_resumes_and_reports(tmp_path):
     assert [f.name for f in folders] == [f"grid-seed{w}-{m}-nh3-seed{w}" for w in (5, 6) for m in ("MEM", "MM", "MME")]
     for folder in folders:
         run = RunDir.open(folder)
-        assert [r["step"] for r in run.view.metrics()] == [0, 20, 40] and run.view.status()["state"] == "finished"
+        assert [r["step"] for r in run.view.metrics()] == [0, 20, 40] and run.view.status().state == "finished"
         assert run.view.embeddings(40)[0].shape == (125, 3)
     before = (folders[0] / "checkpoint.pt").read_bytes()
     assert smtrain(*args).exit_code == 0  # finished runs are left alone
@@ -380,11 +380,11 @@ def test_a_killed_sweep_worker_is_one_line_and_the_same_command_resumes(tmp_path
         f"smtrain: error: worker process {workers[0].pid} was killed by SIGKILL; "
         "the runs keep their last checkpoints: the same command resumes them"
     )
-    states = {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()}
+    states = {RunView.open(p).status().state for p in out.iterdir() if p.is_dir()}
     assert states <= {"failed", "finished"} and "failed" in states
     again = subprocess.run([str(BIN / "smtrain"), *map(str, args)], capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
-    assert {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+    assert {RunView.open(p).status().state for p in out.iterdir() if p.is_dir()} == {"finished"}
 
 
 def test_a_killed_progress_queue_does_not_stop_a_sweep(tmp_path):
@@ -402,7 +402,7 @@ def test_a_killed_progress_queue_does_not_stop_a_sweep(tmp_path):
     os.kill(managers[0].pid, signal.SIGKILL)
     _, stderr = proc.communicate(timeout=300)
     assert proc.returncode == 0, stderr
-    assert {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+    assert {RunView.open(p).status().state for p in out.iterdir() if p.is_dir()} == {"finished"}
 
 
 @pytest.mark.slow
@@ -440,7 +440,7 @@ def test_a_killed_resource_tracker_leaves_a_sweep_quiet(tmp_path):
     _, stderr = proc.communicate(timeout=300)
     assert proc.returncode == 0, stderr
     assert "Traceback" not in stderr and "KeyError" not in stderr and "resource_tracker" not in stderr, stderr
-    assert {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"finished"}
+    assert {RunView.open(p).status().state for p in out.iterdir() if p.is_dir()} == {"finished"}
 
 
 @pytest.mark.slow
@@ -455,9 +455,9 @@ def test_an_interrupted_sweep_says_interrupted_as_a_lone_fit_does(tmp_path):
     assert proc.returncode == 130, stderr
     runs = [RunDir.open(p) for p in sorted(out.iterdir()) if p.is_dir()]
     statuses = [run.view.status() for run in runs]
-    assert {s["state"] for s in statuses} == {"interrupted"}, statuses
-    assert all("the same sweep resumes it" in s["message"] for s in statuses), statuses
-    assert [s["step"] for s in statuses] == [run.view.checkpoint_step() for run in runs]  # where each resumes
+    assert {s.state for s in statuses} == {"interrupted"}, statuses
+    assert all("the same sweep resumes it" in s.message for s in statuses), statuses
+    assert [s.step for s in statuses] == [run.view.checkpoint_step() for run in runs]  # where each resumes
     listed = smtrain("ls", "--runs", out)
     assert listed.exit_code == 0 and "interrupted" in listed.output and "stale" not in listed.output, listed.output
 
@@ -472,8 +472,8 @@ def test_a_sweep_stopped_before_a_runs_first_status_marks_it_all_the_same(tmp_pa
     started.save_checkpoint({"step": 0})
     _mark_stopped([started, untouched], "interrupted", "interrupted; the same sweep resumes it")
     status = started.view.status()
-    assert (status["state"], status["step"]) == ("interrupted", 0), status
-    assert untouched.view.status()["state"] == "created"
+    assert (status.state, status.step) == ("interrupted", 0), status
+    assert untouched.view.status().state == "created"
 
 
 def _sweep_with_checkpoints(tmp_path, steps: int):
@@ -540,10 +540,10 @@ def test_a_write_that_fails_behind_the_steps_stops_the_ensemble_and_is_recorded(
     assert [run.view.checkpoint_step() for run in runs] == [20, 10]
     for run in runs:
         status = RunView.open(run.view.local_path).status()
-        assert status["state"] == "failed" and "No space left on device" in status["message"], status
+        assert status.state == "failed" and "No space left on device" in status.message, status
     assert max(row["step"] for row in runs[1].view.metrics()) == 10
     again = [RunDir.open(run.view.local_path) for run in runs]
     train_ensemble(again, resume=True, progress=False)
     for run in again:
         assert [row["step"] for row in run.view.metrics()] == list(range(0, 61, 10))
-        assert run.view.status()["state"] == "finished"
+        assert run.view.status().state == "finished"

@@ -375,7 +375,7 @@ def test_a_run_folder_being_trained_refuses_a_second_trainer(tmp_path):
     finally:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
-    assert RunView.open(out).status()["state"] == "stale"
+    assert RunView.open(out).status().state == "stale"
     taker = RunDir.open(out)
     taker.claim()  # the lock died with its holder: another process may train the run now
     taker.release()

@@ -28,7 +28,7 @@ def test_a_finished_run_is_never_shortened(tmp_path):
     line = error_line(smtrain("fit", "--resume", out, "--steps", 40))
     assert "--steps 40 is fewer than the 60 steps" in line and "never shortened" in line
     assert ((out / "config.json").read_bytes(), (out / "checkpoint.pt").read_bytes()) == before
-    assert RunView.open(out).status()["state"] == "finished"
+    assert RunView.open(out).status().state == "finished"
 
 
 def test_an_unfinished_run_is_not_shortened_either(tmp_path):

@@ -53,7 +53,7 @@ def test_short_run_learns_and_writes_a_complete_run_folder(tmp_path):
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["steps"] == 600 and cfg["n_h"] == 3 and cfg["lr_decay_steps"] == 480
     assert cfg["dataset_id"] == "grid-seed0-MME"
-    assert run.view.status()["state"] == "finished"
+    assert run.view.status().state == "finished"
     listed = smtrain("ls", "--runs", tmp_path)
     assert "run" in listed.output and "finished" in listed.output
     info = json.loads(smtrain("info", out, "--json").output)
@@ -201,7 +201,7 @@ def test_corrupt_shard_met_during_training_keeps_the_last_checkpoint(tmp_path, m
     assert "shard-00003.mcap" in line
     ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
     assert ckpt["step"] % 10 == 0 and ckpt["step"] < 500
-    assert RunView.open(out).status()["state"] == "failed"
+    assert RunView.open(out).status().state == "failed"
 
 
 def test_nan_loss_stops_and_says_so(tmp_path):
@@ -330,7 +330,7 @@ def test_ctrl_c_says_which_checkpoint_is_kept_and_how_to_resume(tmp_path):
     last = stderr.strip().splitlines()[-1]
     assert last == f"interrupted; its checkpoint of step {step} is kept: smtrain fit --resume {out}", stderr
     status = RunView.open(out).status()
-    assert status["state"] == "interrupted" and str(step) in status["message"]
+    assert status.state == "interrupted" and str(step) in status.message
 
 
 def test_ctrl_c_of_a_sweep_says_the_same_command_resumes_it(tmp_path):
@@ -353,7 +353,7 @@ def test_ctrl_c_of_a_sweep_says_the_same_command_resumes_it(tmp_path):
         f"interrupted; the runs in {out} keep their last checkpoints and the lake its complete parts: "
         "the same command resumes them"
     )
-    assert {RunView.open(p).status()["state"] for p in out.iterdir() if p.is_dir()} == {"interrupted"}
+    assert {RunView.open(p).status().state for p in out.iterdir() if p.is_dir()} == {"interrupted"}
 
 
 def test_a_run_resumed_from_its_step_0_checkpoint_records_step_0_once(tmp_path, monkeypatch):

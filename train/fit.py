@@ -268,7 +268,7 @@ def _mark(runs: list[RunDir], state: str, message: str) -> None:
         try:
             step = run.view.checkpoint_step()
         except SmspaceError:  # unreadable: the status says what it last knew
-            step = run.view.status()["step"]
+            step = run.view.status().step
         run.set_status(state, step, " ".join(message.replace("{step}", str(step)).split()))
 
     run_within([lambda run=run: mark(run) for run in runs])
@@ -299,7 +299,7 @@ def claimed(
 def _steps_done(run: RunDir) -> int:
     """The step of a run's last evaluation, as its status says (0 where it cannot say)."""
     try:
-        return int(run.view.status()["step"])
+        return int(run.view.status().step)
     except SmspaceError:
         return 0
 

@@ -238,6 +238,6 @@ def _record_outcome(where: str, line: str, state: str = "failed") -> None:
 
     def mark() -> None:
         run = RunDir.open(where)
-        run.set_status(state, run.view.status()["step"], line)
+        run.set_status(state, run.view.status().step, line)
 
     run_within([mark])

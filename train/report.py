@@ -104,7 +104,7 @@ def load_runs(paths: list[Path], left_out: list[str] | None = None) -> list[RunD
         rows = run.metrics()
         if not rows:
             status = run.status()
-            why = f"{status['state']}: {status['message']}" if status.get("message") else status["state"]
+            why = f"{status.state}: {status.message}" if status.message else status.state
             skipped.append(f"{path} has no evaluations yet ({why})")
             continue
         cfg = run.config

@@ -36,6 +36,7 @@ from smspace.lake.store import (
 from smspace.train import tensorboard
 from smspace.train.claim import LOCK, Claim
 from smspace.train.config import TrainConfig
+from smspace.train.status import RunStatus
 
 CONFIG = RUN_CONFIG.file
 METRICS = "metrics.parquet"
@@ -139,19 +140,14 @@ class RunView:
         except (FileNotFoundError, SmspaceError):
             return set()
 
-    def status(self) -> dict[str, Any]:
-        """The recorded state; "running" becomes "stale" when its process is gone from this host."""
+    def status(self) -> RunStatus:
+        """The recorded state (train/status.py); "running" becomes "stale" when its process is gone
+        from this host."""
         try:
-            status = RUN_STATUS.decode(self._read(STATUS), f"{self.url}/{STATUS}")
+            data = self._read(STATUS)
         except FileNotFoundError:
-            return {"state": "created", "step": 0, "message": ""}
-        fields = {"state": str, "step": int, "message": str}
-        if not isinstance(status, dict) or not all(isinstance(status.get(k), t) for k, t in fields.items()):
-            raise SmspaceError(f"{self.url}/{STATUS} is unreadable (state, step and message must be recorded)")
-        mine = status.get("host") == socket.gethostname()
-        if status.get("state") == "running" and mine and not _alive(status.get("pid")):
-            status |= {"state": "stale", "message": "its process is gone; resume with --resume"}
-        return status
+            return RunStatus.created()
+        return RunStatus.decode(data, f"{self.url}/{STATUS}").as_seen_here()
 
     def metrics(self) -> list[dict[str, Any]]:
         try:
@@ -172,8 +168,8 @@ class RunView:
         return {
             "run": self.url,
             "dataset_id": cfg.dataset_id,
-            "state": status["state"],
-            "message": status["message"],
+            "state": status.state,
+            "message": status.message,
             "step": last.get("step", 0),
             "steps": cfg.steps,
             "n_h": cfg.n_h,
@@ -370,10 +366,10 @@ class RunDir:
         """The run's state; a running one records who runs it, so that `ls` can tell when it died."""
         if self._claim.lost:  # the folder is another process's now
             return
-        status = {"state": state, "step": step, "message": message, "run_id": self.run_id}
+        status = RunStatus(state, step, message, self.run_id)
         if state == "running":
-            status |= {"pid": os.getpid(), "host": socket.gethostname()}
-        self._write(STATUS, RUN_STATUS.encode(status))
+            status = replace(status, pid=os.getpid(), host=socket.gethostname())
+        self._write(STATUS, status.encode())
 
     # -- metrics and embeddings -------------------------------------------------------------
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
@@ -476,18 +472,6 @@ def _npy(data: bytes) -> np.ndarray:
     return np.load(io.BytesIO(data), allow_pickle=False)
 
 
-def _alive(pid: Any) -> bool:
-    if not isinstance(pid, int) or pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process: alive
-        return True
-    return True
-
-
 def _npy_bytes(x: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.save(buf, np.ascontiguousarray(x), allow_pickle=False)
@@ -505,7 +489,7 @@ def after_a_stop(where: str, world: int = 1) -> str:
 
     def look() -> None:
         run = RunView.open(where)
-        found.append((exists(run.store, CHECKPOINT), int(run.status().get("step", 0))))
+        found.append((exists(run.store, CHECKPOINT), run.status().step))
 
     run_within([look])
     nproc = f" --nproc {world}" if world > 1 else ""
