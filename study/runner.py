@@ -26,6 +26,7 @@ from smspace.lake.store import Store, exists, free_bytes, open_store
 from smspace.study import budget
 from smspace.study.budget import SetupProbe, makespan
 from smspace.study.file import RECORD, SOURCE, StudyFile, StudyRequest, changes, folder_name
+from smspace.study.record import SweepRecord
 from smspace.study.sweep import (
     SweepPlan,
     check_apart,
@@ -33,7 +34,6 @@ from smspace.study.sweep import (
     planned_ensembles,
     prepare,
     run_ensembles,
-    study_record,
 )
 from smspace.train.config import RUNS, TrainConfig, flag_fields, parameter_count
 from smspace.train.run_dir import CONFIG, RunDir, RunView
@@ -288,7 +288,7 @@ def plan_study(
         setup = combo.plan.setup
         spec, probe = get_setup(setup), probes[setup]
         template = combo.plan.template.for_setup(setup, combo.plan.n_transitions, spec.encoder_layers)
-        record = {} if overwrite else (study_record(combo.out) or {})
+        record = None if overwrite else SweepRecord.read(combo.out)
         states = {
             name: _run_state(combo.out, name, template.steps, overwrite)
             for name in (

@@ -10,7 +10,6 @@ from their checkpoints, grouped by the step they reached.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,58 +20,30 @@ import numpy as np
 from smspace.common import plugins
 from smspace.common.bounded import run_within
 from smspace.common.differing import differing
-from smspace.common.errors import SmspaceError, one_line
+from smspace.common.errors import SmspaceError
 from smspace.common.executors import WorkerDied, open_executor
 from smspace.datagen.generate import generate
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.manifest import load_manifest
-from smspace.lake.records import SWEEP_STUDY, UnknownFormat
-from smspace.lake.store import StorageUnreachable, Store, exists, listing, open_store, within
+from smspace.lake.store import Store, exists, listing, open_store, within
 from smspace.study.monitor import StudyMonitor, monitored
+from smspace.study.record import STUDY, SweepRecord
 from smspace.train.config import TrainConfig, available_memory, memory_needed
 from smspace.train.contract import check_model
 from smspace.train.engine import resolve_device
 from smspace.train.fit import train_ensemble
 from smspace.train.precision import say_notes_through
 from smspace.train.run_dir import CONFIG, RunDir
-from smspace.train.terms import HISTORY, STUDY, grown, study_template, terms
-
-
-def study_record(out: Store) -> dict[str, Any] | None:
-    """The study.json of `out` ({"terms": …, "ensembles": [[run name, …], …]}), None if absent."""
-    try:
-        record = SWEEP_STUDY.read(out)
-        if not isinstance(record["terms"], dict):
-            raise TypeError("not a study record")
-        groups = record.get("ensembles", [])
-        if not isinstance(groups, list) or not all(
-            isinstance(g, list) and all(isinstance(n, str) for n in g) for g in groups
-        ):
-            raise TypeError("ensembles is not a list of lists of run names")
-        names = [n for g in groups for n in g]
-        if len(names) != len(set(names)):
-            raise ValueError("a run is listed in two ensembles")
-        if not isinstance(record["terms"].get("steps"), int):
-            raise TypeError("terms.steps is not a number of steps")
-        TrainConfig.from_dict({**record["terms"], "dataset": ""})  # every term a value a run could have
-        return record
-    except FileNotFoundError:
-        return None
-    except (StorageUnreachable, UnknownFormat):
-        raise  # not "unreadable": --overwrite would be the wrong advice (for another version's record too)
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError, SmspaceError) as e:
-        raise SmspaceError(
-            f"{out.url}/{STUDY} is unreadable ({one_line(e, with_type=True)}); pass --overwrite to start anew"
-        ) from e
+from smspace.train.terms import HISTORY, grown, study_template, terms
 
 
 def recorded_study(out: Store) -> dict[str, Any] | None:
     """The terms of the study already in `out`: its study.json, else (a folder of an older smspace)
     the terms its runs share; None for a new study."""
-    record = study_record(out)
+    record = SweepRecord.read(out)
     if record is not None:
-        return record["terms"]
+        return record.terms
     found: dict[str, dict[str, Any]] = {}
     for path in listing(out, f"*/{CONFIG}"):
         run = RunDir.open(out.child(path.split("/")[0]))
@@ -132,8 +103,8 @@ def plan_runs(
             extended = replace(cfg, run_id=old.run_id, extensions=[*old.extensions, extension])
         actions.append((path, cfg, (run, extended)))
     out.make()
-    record = {} if overwrite else (study_record(out) or {})
-    out.put(STUDY, _study_bytes(record | {"terms": terms(cfgs[0])}))
+    earlier = None if overwrite else SweepRecord.read(out)
+    SweepRecord(terms(cfgs[0]), earlier.ensembles if earlier is not None else ()).write(out)
     plans = []
     for path, cfg, existing in actions:
         if existing is None:
@@ -233,28 +204,27 @@ def prepare(
     return [run for run, _ in plans], ensembles_todo
 
 
-def _study_bytes(record: dict[str, Any]) -> bytes:
-    return SWEEP_STUDY.encode(record)
-
-
 def study_ensembles(out: Store, runs: list[RunDir], max_ensemble: int, workers: int) -> list[list[RunDir]]:
     """The ensembles the runs train in (`planned_ensembles`); new groups are recorded in study.json."""
-    record = study_record(out) or {}
+    record = SweepRecord.read(out)
+    if record is None:  # plan_runs records it before any run is trained
+        raise SmspaceError(f"{out.url}/{STUDY} is gone: another process removed it while the study ran")
     by_name = {run.name: run for run in runs}
     recorded, new = planned_ensembles(record, list(by_name), max_ensemble, workers)
     if new:
-        out.put(STUDY, _study_bytes(record | {"ensembles": record.get("ensembles", []) + new}))
+        record.with_ensembles(new).write(out)
     return [[by_name[name] for name in group] for group in recorded + new]
 
 
 def planned_ensembles(
-    record: dict[str, Any], names: list[str], max_ensemble: int, workers: int
+    record: SweepRecord | None, names: list[str], max_ensemble: int, workers: int
 ) -> tuple[list[list[str]], list[list[str]]]:
     """(the groups study.json recorded when these runs first trained, new groups for the others):
     a re-run trains the same groups whatever --max-ensemble or --workers say now, so that resuming
     never changes the computation. The sweep and its dry run plan with this one function."""
     wanted = set(names)
-    recorded = [[name for name in group if name in wanted] for group in record.get("ensembles", [])]
+    groups = record.ensembles if record is not None else ()
+    recorded = [[name for name in group if name in wanted] for group in groups]
     recorded = [group for group in recorded if group]
     grouped = {name for group in recorded for name in group}
     return recorded, ensembles([name for name in names if name not in grouped], max_ensemble, workers)
@@ -307,7 +277,7 @@ def _mark_stopped(runs: list[RunDir], state: str, line: str) -> None:
 
     def mark(run: RunDir) -> None:
         now = RunDir.open(run.store)
-        state_now = now.view.status()["state"]
+        state_now = now.view.status().state
         # "created" with a checkpoint: its worker was stopped between the first checkpoint and the
         # status written after it (seen under load); one with none never started and stays so
         if state_now in ("running", "stale") or (state_now == "created" and now.view.has_checkpoint()):

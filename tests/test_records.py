@@ -112,3 +112,31 @@ def test_bench_records_of_earlier_smspaces_are_typed_and_written_back_unchanged(
                          ({"datasets": {"a": 1}}, "datasets are not dataset ids")]:  # fmt: skip
         with pytest.raises(SmspaceError, match="^" + re.escape(f"here: {said}")):
             BenchRecord.parse(json.loads(results[0].read_text()) | change, "here")
+
+
+def test_a_run_status_is_typed_and_every_malformed_field_is_one_line_naming_the_file():
+    """status.json as train/status.py reads it: written back it says the same; a "running" status
+    of a process gone from this host reads "stale"; a field of the wrong type or out of its bounds,
+    or one it does not know, is refused naming the file and the field."""
+    import socket
+
+    from smspace.common.errors import SmspaceError
+    from smspace.train.status import RunStatus
+
+    finished = RunStatus("finished", 40, "done", "abc")
+    assert RunStatus.decode(finished.encode(), "here") == finished
+    assert RunStatus.decode(b'{"state": "failed", "step": 3, "message": ""}', "here").run_id is None  # older
+    dead = RunStatus("running", 20, "", "abc", pid=2**22 + 12345, host=socket.gethostname())
+    assert RunStatus.decode(dead.encode(), "here").as_seen_here().state == "stale"
+    elsewhere = RunStatus("running", 20, "", "abc", pid=1, host="another-host")
+    assert elsewhere.as_seen_here() == elsewhere  # another host's process cannot be checked from here
+    base = json.loads(finished.encode())
+    for change, said in [({"step": "x"}, "step is 'x'"), ({"step": True}, "step is True"),
+                         ({"step": -1}, "step -1 is negative"), ({"state": "won"}, "state 'won' is none of"),
+                         ({"pid": "7"}, "pid is '7', not a int"), ({"host": 3}, "host is 3, not a str"),
+                         ({"message": "x" * 70_000}, "its message is 70000 characters"),
+                         ({"colour": "red"}, "unknown field(s) colour")]:  # fmt: skip
+        with pytest.raises(
+            SmspaceError, match="^" + re.escape("here/status.json is unreadable (") + ".*" + re.escape(said)
+        ):
+            RunStatus.decode(json.dumps(base | change).encode(), "here/status.json")

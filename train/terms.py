@@ -28,14 +28,12 @@ from typing import Any
 from smspace.common.differing import differing
 from smspace.common.errors import SmspaceError
 from smspace.common.plugins import changes
-from smspace.lake.records import SWEEP_STUDY
 from smspace.train.config import TrainConfig
 from smspace.train.model import plugin_record
 
 PER_RUN = ("dataset", "dataset_id", "dataset_config_hash", "dataset_shards_sha256", "mode", "seed", "run_id")
 EXECUTION = ("device", "threads", "loader_workers", "world_size", "compile")  # how a run ran, not what it computed
 HISTORY = ("extensions", "sessions", "precision_asked")  # what happened to a run or was asked, not what it computes
-STUDY = SWEEP_STUDY.file
 
 
 def terms(cfg: TrainConfig) -> dict[str, Any]:
