@@ -10,25 +10,23 @@ are never pooled.
 
 from __future__ import annotations
 
-import html
-import io
 import json
 import os
 import stat
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
-from smspace.bench.result import ScoredRow
 from smspace.bench.run import BENCH
 from smspace.bench.suite import get_suite
 from smspace.bench.verify import NotScored, Result, verify
 from smspace.common.errors import SmspaceError
 from smspace.lake import scan
 from smspace.lake.store import Store, canonical, open_store
+from smspace.lake.transitions import MODES
 from smspace.metrics.scores import SCORES
-from smspace.metrics.spread import Spread, as_cell
-from smspace.train.pages import record_files, recorded_files, refuse_inside, write_atomically
+from smspace.metrics.spread import Spread, as_cell, grouped
+from smspace.train.pages import escape, record_files, recorded_files, refuse_inside, save_figure, write_atomically
 
 SCORE_NAMES = tuple(SCORES)
 RECORD = ".smspace-leaderboard.json"  # the pages the last leaderboard wrote here
@@ -86,10 +84,7 @@ def cells(results: list[Result]) -> list[dict[str, Any]]:
     shown = row_names(results)
     table = []
     for r in results:
-        by_mode: dict[str, list[ScoredRow]] = defaultdict(list)
-        for row in r.rows:
-            by_mode[row.mode].append(row)
-        for mode, rows in sorted(by_mode.items()):
+        for mode, rows in grouped(r.rows, lambda row: row.mode, MODES).items():
             for score in SCORE_NAMES:
                 spread = Spread.of([row.scores[score] for row in rows])
                 table.append({"suite": r.suite, "version": r.version, "task": r.task, "mode": mode,
@@ -153,9 +148,7 @@ def _write_one(results: list[Result], out: Path) -> list[Path]:
     paths = [out / "leaderboard.json", out / "leaderboard.md", out / "leaderboard.png"]
     write_atomically(paths[0], (json.dumps(head | {"cells": table}, indent=1, allow_nan=False) + "\n").encode())
     write_atomically(paths[1], markdown(table, results, head).encode())
-    buffer = io.BytesIO()
-    figure(table, buffer, head)
-    write_atomically(paths[2], buffer.getvalue())
+    figure(table, paths[2], head)
     return paths
 
 
@@ -205,24 +198,13 @@ def _row(first: str, rest: list[str]) -> str:
     return "| " + " | ".join(escape(c) for c in [first, *rest]) + " |"
 
 
-MARKDOWN = str.maketrans({c: "\\" + c for c in "\\`*_[]|~#"})
-
-
-def escape(text: str) -> str:
-    """A value as a markdown table cell shows it, never as markup: HTML escaped, markdown's
-    characters backslashed, line breaks (which names and values cannot hold) refused."""
-    if any(c in text for c in "\r\n"):
-        raise SmspaceError(f"{text[:40]!r}… holds a line break: it cannot be written in a table")
-    return html.escape(text, quote=True).translate(MARKDOWN)
-
-
 def _wall(result: Result | None) -> str:
     if result is None:
         return "—"
     return ("" if result.wall_complete else "≥ ") + f"{result.wall_s:.0f}"
 
 
-def figure(table: list[dict[str, Any]], path: Path | BinaryIO, head: dict[str, Any]) -> None:
+def figure(table: list[dict[str, Any]], path: Path, head: dict[str, Any]) -> None:
     """One panel per score: each entry's mean over worlds with its standard deviation, per task and mode."""
     import matplotlib
 
@@ -253,5 +235,4 @@ def figure(table: list[dict[str, Any]], path: Path | BinaryIO, head: dict[str, A
     axes[0].legend(fontsize=8, ncol=min(len(rows), 5), loc="upper center", bbox_to_anchor=(0.5, 1.45))
     fig.suptitle(f"smspace-bench {head['suite']} ({', '.join(f'v{v}' for v in head['versions'])})", y=1.0)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, bbox_inches="tight", format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110, bbox_inches="tight")

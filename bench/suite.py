@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 
 from smspace.common.errors import SmspaceError
 from smspace.lake.manifest import GenConfig, dataset_id
+from smspace.lake.transitions import MODES
 
 
 @dataclass(frozen=True)
@@ -74,8 +75,6 @@ class Suite:
                 return task
         raise SmspaceError(f"suite {self.label} has no task {name!r} ({', '.join(t.name for t in self.tasks)})")
 
-
-MODES = ("MEM", "MM", "MME")
 
 # The paper's three setups at a size two cores run in hours (docs/BENCHMARK.md): the grid worlds
 # at 20000 steps (a fifth of the paper's), 5 worlds for grid and 3 for grid6 (a 4x wider encoder);

@@ -1,16 +1,31 @@
-"""How a score is summarised over worlds (or runs), the one way `smtrain report` and the
-leaderboard both summarise it: the mean, the sample standard deviation (ddof 1: an estimate of
+"""How scores are grouped and summarised over worlds (or runs), the one way `smtrain report` and
+the leaderboard both do it. Groups: by a key (a study's terms, a mode), never pooled across keys.
+Summary: the mean, the sample standard deviation (ddof 1: an estimate of
 the spread of worlds the table's few were drawn from, not of those few alone), and how many there
 were. One world has no spread: None, never a "± 0" that would claim one."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
 DDOF = 1
+T = TypeVar("T")
+K = TypeVar("K", bound=Hashable)
+
+
+def grouped(items: Iterable[T], key: Callable[[T], K], order: Sequence[K] = ()) -> dict[K, list[T]]:
+    """`items` by `key`, each group in the items' order: the keys of `order` first (the modes in
+    the paper's order), then the others sorted by their text, so a table's rows never depend on
+    the order the folders were listed in."""
+    groups: dict[K, list[T]] = {}
+    for item in items:
+        groups.setdefault(key(item), []).append(item)
+    rest = sorted((k for k in groups if k not in order), key=str)
+    return {k: groups[k] for k in [*(k for k in order if k in groups), *rest]}
 
 
 @dataclass(frozen=True)

@@ -176,3 +176,15 @@ def test_a_spread_over_worlds_is_the_sample_standard_deviation_and_none_for_one_
     assert along(np.array([[1.0, 2.0]]))[1].tolist() == [0.0, 0.0]
     with pytest.raises(ValueError, match="one or more values"):
         Spread.of([])
+
+
+def test_groups_come_in_the_given_order_then_sorted_whatever_order_the_items_came_in():
+    from smspace.metrics.spread import grouped
+
+    items = [("MME", 1), ("x", 2), ("MM", 3), ("MME", 4), ("MEM", 5), ("a", 6)]
+    for order in (items, items[::-1]):
+        groups = grouped(order, lambda item: item[0], ("MEM", "MM", "MME"))
+        assert list(groups) == ["MEM", "MM", "MME", "a", "x"]
+        assert sorted(groups["MME"]) == [("MME", 1), ("MME", 4)]
+    assert grouped(items, lambda item: item[0])["MME"] == [("MME", 1), ("MME", 4)]  # in the items' order
+    assert list(grouped([], lambda item: item, ("MM",))) == []

@@ -5,11 +5,14 @@ not write again removed, so no stale page is read as today's. One set of rules f
 
 from __future__ import annotations
 
+import html
+import io
 import json
 import os
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from smspace.common.errors import SmspaceError
 from smspace.lake.store import within
@@ -26,6 +29,22 @@ def write_atomically(path: Path, data: bytes) -> None:
     with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", delete=False) as fh:
         fh.write(data)
     os.replace(fh.name, path)
+
+
+def write_text(path: Path, text: str) -> None:
+    write_atomically(path, text.encode())
+
+
+def save_figure(fig: Any, path: Path, **options: Any) -> None:
+    """A matplotlib figure as PNG, written as every page is (`write_atomically`), then closed."""
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    try:
+        fig.savefig(buffer, format="png", **options)
+    finally:
+        plt.close(fig)
+    write_atomically(path, buffer.getvalue())
 
 
 def recorded_files(out: Path, record: str) -> set[str]:
@@ -46,3 +65,14 @@ def record_files(out: Path, record: str, earlier: set[str], files: Sequence[Path
         if not target.is_symlink() and target.is_file():
             target.unlink(missing_ok=True)
     write_atomically(out / record, (json.dumps({"files": sorted(names)}, indent=1) + "\n").encode())
+
+
+MARKDOWN = str.maketrans({c: "\\" + c for c in "\\`*_[]|~#"})
+
+
+def escape(text: str) -> str:
+    """A value as a markdown table cell shows it, never as markup: HTML escaped, markdown's
+    characters backslashed, line breaks (which names and values cannot hold) refused."""
+    if any(c in text for c in "\r\n"):
+        raise SmspaceError(f"{text[:40]!r}… holds a line break: it cannot be written in a table")
+    return html.escape(text, quote=True).translate(MARKDOWN)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import re
 from collections import defaultdict
@@ -18,11 +19,12 @@ from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.lake.normalise import normalisers
 from smspace.lake.store import StorageUnreachable, exists, where
+from smspace.lake.transitions import MODES
 from smspace.metrics import affine_projection
 from smspace.metrics.scores import SCORES
-from smspace.metrics.spread import Spread, along, as_cell
+from smspace.metrics.spread import Spread, along, as_cell, grouped
 from smspace.train.colours import position_colours
-from smspace.train.pages import record_files, recorded_files, refuse_inside
+from smspace.train.pages import escape, record_files, recorded_files, refuse_inside, save_figure, write_text
 from smspace.train.run_dir import RunView
 from smspace.train.terms import terms
 
@@ -149,10 +151,7 @@ def _shown(value: Any) -> str:
 def by_study(runs: list[RunData]) -> list[Study]:
     """Runs grouped by their terms; studies are named by setup and N_h, and where two share those,
     by the fields that tell them apart."""
-    groups: dict[str, list[RunData]] = defaultdict(list)
-    for r in runs:
-        groups[json.dumps(r.terms, sort_keys=True, default=str)].append(r)
-    members = list(groups.values())
+    members = list(grouped(runs, lambda r: json.dumps(r.terms, sort_keys=True, default=str)).values())
     variables = independent([g[0].terms for g in members])
     studies = []
     for group in members:
@@ -185,11 +184,7 @@ def independent(terms: list[dict[str, Any]]) -> list[str]:
 
 
 def by_mode(runs: list[RunData]) -> dict[str, list[RunData]]:
-    groups: dict[str, list[RunData]] = defaultdict(list)
-    for r in runs:
-        groups[r.mode].append(r)
-    order = [m for m in MODE_COLOURS if m in groups] + sorted(m for m in groups if m not in MODE_COLOURS)
-    return {m: groups[m] for m in order}
+    return grouped(runs, lambda r: r.mode, MODES)
 
 
 POSITION_UNITS = {"grid": "cells", "grid6": "cells", "arm": "m", "arm6": "m"}  # docs/MODEL.md §2
@@ -238,8 +233,7 @@ def curves_figure(study: Study, path: Path) -> None:
     fig.suptitle(f"{study.name}: {study.label}", fontsize=13)
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
     fig.tight_layout(rect=(0, 0.07, 1, 0.95))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)
 
 
 def comparison_variables(studies: list[Study]) -> list[str]:
@@ -294,8 +288,7 @@ def comparison_figure(studies: list[Study], variable: str, path: Path) -> None:
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), frameon=False, fontsize=9)
     fig.suptitle(f"the studies against {variable}: mean over worlds ± std", fontsize=13)
     fig.tight_layout(rect=(0, 0.1 + 0.04 * (len(labels) // 4), 1, 0.95))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def projection_figure(run: RunData, step: int, path: Path) -> None:
@@ -357,8 +350,7 @@ def projection_figure(run: RunData, step: int, path: Path) -> None:
         fontsize=12,
     )
     fig.subplots_adjust(left=0.02, right=0.98, top=0.83, bottom=0.14, wspace=0.25)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _dataset(run: RunData) -> Dataset | None:
@@ -466,19 +458,21 @@ def _mean_and_std(values: np.ndarray) -> tuple[float, float]:
 
 
 def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path, variables: Sequence[str] = ()) -> None:
-    with open(out / "final.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(table[0]))
-        writer.writeheader()
-        writer.writerows(table)
-    with open(out / "runs.csv", "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["run", "path", "study", "setup", "n_h", *variables, "mode", "step",
-                         "eval_loss", "d_topo", "d_metric"])  # fmt: skip
-        for study in studies:
-            grid = [cell(study.value(v)) for v in variables]
-            for r in study.runs:
-                at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
-                writer.writerow([r.name, r.run.url, study.name, r.setup, r.n_h, *grid, r.mode, study.final_step, *at])
+    final = io.StringIO(newline="")
+    writer = csv.DictWriter(final, fieldnames=list(table[0]))
+    writer.writeheader()
+    writer.writerows(table)
+    write_text(out / "final.csv", final.getvalue())
+    runs = io.StringIO(newline="")
+    writer = csv.writer(runs)
+    writer.writerow(["run", "path", "study", "setup", "n_h", *variables, "mode", "step",
+                     "eval_loss", "d_topo", "d_metric"])  # fmt: skip
+    for study in studies:
+        grid = [cell(study.value(v)) for v in variables]
+        for r in study.runs:
+            at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
+            writer.writerow([r.name, r.run.url, study.name, r.setup, r.n_h, *grid, r.mode, study.final_step, *at])
+    write_text(out / "runs.csv", runs.getvalue())
     extra = "".join(f" {v} |" for v in variables)
     lines = [
         f"| study | setup | N_h | mode | runs | step |{extra} {_metric_columns()} |",
@@ -486,15 +480,11 @@ def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path, v
     ]
     for row in table:
         cells = [as_cell(row[f"{k}_mean"], row[f"{k}_std"]) for k, _ in METRICS]
-        head = f"| {row['study']} | {row['setup']} | {row['n_h']} | {row['mode']} | {row['runs']} | {row['step']} | "
-        head += "".join(f"{_md(row[v])} | " for v in variables)
+        head = f"| {escape(row['study'])} | {row['setup']} | {row['n_h']} | {row['mode']} | "
+        head += f"{row['runs']} | {row['step']} | "
+        head += "".join(f"{escape(str(row[v]))} | " for v in variables)
         lines.append(head + " | ".join(cells) + " |")
-    (out / "final.md").write_text("\n".join(lines) + "\n")
-
-
-def _md(value: Any) -> str:
-    """A value inside a Markdown table cell: a pipe would end the cell."""
-    return str(value).replace("|", "\\|")
+    write_text(out / "final.md", "\n".join(lines) + "\n")
 
 
 def notices(studies: list[Study]) -> list[str]:
@@ -595,10 +585,12 @@ def markdown_report(
         lines += ["### Runs", "", f"| run | mode | step | {_metric_columns()} |", "|---|---|---|---|---|---|"]
         for r in study.runs:
             at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
-            lines.append(f"| {r.name} | {r.mode} | {study.final_step} | " + " | ".join(f"{v:.3g}" for v in at) + " |")
+            lines.append(
+                f"| {escape(r.name)} | {r.mode} | {study.final_step} | " + " | ".join(f"{v:.3g}" for v in at) + " |"
+            )
         lines += ["", "### Made with", "", *made_with(study.runs), ""]
     path = out / "report.md"
-    path.write_text("\n".join(lines))
+    write_text(path, "\n".join(lines))
     return path
 
 
