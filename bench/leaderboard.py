@@ -17,6 +17,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+from smspace.bench import differences
 from smspace.bench.run import BENCH
 from smspace.bench.suite import get_suite
 from smspace.bench.verify import NotScored, Result, verify
@@ -85,12 +86,15 @@ def cells(results: list[Result]) -> list[dict[str, Any]]:
     table = []
     for r in results:
         for mode, rows in grouped(r.rows, lambda row: row.mode, MODES).items():
+            rows = sorted(rows, key=lambda row: row.world)
             for score in SCORE_NAMES:
-                spread = Spread.of([row.scores[score] for row in rows])
+                values = [row.scores[score] for row in rows]
+                spread = Spread.of(values)
                 table.append({"suite": r.suite, "version": r.version, "task": r.task, "mode": mode,
                               "entry": shown[r.where], "code": r.code, "score": score, "mean": spread.mean,
-                              "std": spread.std, "worlds": sorted(row.world for row in rows),
+                              "std": spread.std, "worlds": [row.world for row in rows], "values": values,
                               "wall_s": r.wall_s})  # fmt: skip
+    differences.mark(table, {shown[r.where] for r in results if r.entry == differences.FLOOR})
     return table
 
 
@@ -144,7 +148,8 @@ def _write_one(results: list[Result], out: Path) -> list[Path]:
     except OSError as e:
         raise SmspaceError(f"cannot create folder {out}: {e.strerror or e}") from None
     versions = sorted({r.version for r in results})
-    head = {"suite": results[0].suite, "versions": versions, "results": sorted(r.where for r in results)}
+    head = {"suite": results[0].suite, "versions": versions, "results": sorted(r.where for r in results),
+            "differences": differences.PROTOCOL}  # fmt: skip
     paths = [out / "leaderboard.json", out / "leaderboard.md", out / "leaderboard.png"]
     write_atomically(paths[0], (json.dumps(head | {"cells": table}, indent=1, allow_nan=False) + "\n").encode())
     write_atomically(paths[1], markdown(table, results, head).encode())
@@ -160,14 +165,21 @@ def _cell(table: list[dict[str, Any]], entry: str, task: str, mode: str, score: 
 def _shown(cell: dict[str, Any] | None) -> str:
     if cell is None:
         return "—"
-    return as_cell(cell["mean"], cell["std"])
+    shown = as_cell(cell["mean"], cell["std"])
+    if cell.get("ci") is not None:
+        shown += f" [{cell['ci'][0]:.3g}, {cell['ci'][1]:.3g}]"
+    said = differences.marks(cell)
+    return f"{shown} {said}" if said else shown
 
 
 def markdown(table: list[dict[str, Any]], results: list[Result], head: dict[str, Any]) -> str:
     cols, rows = columns(table), entries(table)
     versions = ", ".join(f"v{v}" for v in head["versions"])
     lines = [f"# smspace-bench: {head['suite']} ({versions})", "",
-             f"{len(results)} result(s); each cell: mean ± standard deviation over worlds.", "",
+             f"{len(results)} result(s); each cell: mean ± standard deviation over worlds [its 95 % "
+             "bootstrap interval]; best: the best mean of its column; floor: the random encoder's; ≈best, "
+             "≈floor: not told apart from the best, or from the floor, by a paired t-test over the shared "
+             "worlds, Holm-corrected over the column's entries (docs/BENCHMARK.md).", "",
              _row("task", ["setup", "modes", "worlds", "transitions", "steps"]), "|---|" + "---|" * 5]  # fmt: skip
     suite = get_suite(f"{head['suite']}@{max(head['versions'])}")
     for name in dict.fromkeys(t for t, _ in cols):

@@ -25,6 +25,7 @@ from smspace.bench.verify import Result
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
 from smspace.metrics.scores import scores_of
+from smspace.metrics.significance import bootstrap_interval, paired_p, seed_of
 from smspace.metrics.spatial import DegenerateRepresentation, check_representation, spatial_scores
 
 from .conftest import SAMPLES, failed_in_one_line, run_cmd
@@ -138,6 +139,15 @@ def test_honest_results_give_the_exact_table(bench, tmp_path):
             cell = cells[(entry, "grid", mode, "d_metric")]
             assert cell["mean"] == values.mean() and cell["std"] == values.std(ddof=1), cell
     assert cells[("isomap", "grid6", "MM", "d_topo")]["std"] is None  # one world: no spread, valid JSON
+    assert cells[("isomap", "grid6", "MM", "d_topo")]["ci"] is None
+    assert table["differences"]["bootstrap_seed"] == 0
+    for (entry, task, mode, score), cell in cells.items():  # every interval and test follows from the cells
+        if cell["ci"] is not None:
+            seed = seed_of(0, "tiny", task, mode, score, entry)
+            assert cell["ci"] == list(bootstrap_interval(cell["values"], seed)), cell
+        if cell["vs_best"] is not None:
+            best = cells[(cell["vs_best"]["entry"], task, mode, score)]
+            assert best["is_best"] and cell["vs_best"]["p"] == paired_p(cell["values"], best["values"]), cell
 
 
 def _rehash(folder: Path, row: int, h: np.ndarray) -> Callable[[dict], None]:
