@@ -100,15 +100,16 @@ def bench(suite, entries, lake, out, workers, gen_workers, executor, overwrite, 
 @click.command()
 @click.argument("results", nargs=-1, required=True)
 @click.option("--out", default="leaderboard", show_default=True, type=click.Path(path_type=Path))
+@click.option("--html", is_flag=True, help="Also write leaderboard.html: one self-contained page to sort and filter.")
 @friendly_errors
-def leaderboard(results, out) -> None:
+def leaderboard(results, out, html) -> None:
     """Write leaderboard.md, .json and .png in --out from the results under RESULTS (folders or
     fsspec URLs, such as runs/bench or s3://bucket/bench)."""
     from smspace.bench.leaderboard import write_leaderboard
 
     left_out: list[str] = []
     try:
-        for path in write_leaderboard(list(results), out, left_out):
+        for path in write_leaderboard(list(results), out, left_out, html=html):
             click.echo(path)
     finally:  # what was left out is said, the table written or not
         for note in left_out:

@@ -17,7 +17,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from smspace.bench import differences
+from smspace.bench import differences, page
 from smspace.bench.run import BENCH
 from smspace.bench.suite import get_suite
 from smspace.bench.verify import NotScored, Result, verify
@@ -121,8 +121,11 @@ def entries(table: list[dict[str, Any]]) -> list[str]:
     return sorted({c["entry"] for c in table})
 
 
-def write_leaderboard(paths: list[str | Path], out: Path, left_out: list[str] | None = None) -> list[Path]:
-    """leaderboard.json, .md and .png in `out`; results of several suites: one leaderboard per
+def write_leaderboard(
+    paths: list[str | Path], out: Path, left_out: list[str] | None = None, html: bool = False
+) -> list[Path]:
+    """leaderboard.json, .md and .png in `out` (and the page to browse, leaderboard.html, with
+    `html`); results of several suites: one leaderboard per
     suite, in out/<suite>/."""
     results = find_results(paths, left_out)
     if not results:
@@ -136,12 +139,12 @@ def write_leaderboard(paths: list[str | Path], out: Path, left_out: list[str] | 
     written = []
     for suite in suites:
         mine = [r for r in results if r.suite == suite]
-        written += _write_one(mine, out if len(suites) == 1 else out / suite)
+        written += _write_one(mine, out if len(suites) == 1 else out / suite, html)
     record_files(out, RECORD, earlier, written)  # one suite's pages of an earlier run: removed, not left stale
     return written
 
 
-def _write_one(results: list[Result], out: Path) -> list[Path]:
+def _write_one(results: list[Result], out: Path, html: bool = False) -> list[Path]:
     table = cells(results)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -154,6 +157,10 @@ def _write_one(results: list[Result], out: Path) -> list[Path]:
     write_atomically(paths[0], (json.dumps(head | {"cells": table}, indent=1, allow_nan=False) + "\n").encode())
     write_atomically(paths[1], markdown(table, results, head).encode())
     figure(table, paths[2], head)
+    if html:
+        paths.append(out / "leaderboard.html")
+        text = page.page(table, results, row_names(results), head, paths[2].read_bytes(), out)
+        write_atomically(paths[3], text.encode())
     return paths
 
 

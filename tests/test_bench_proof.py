@@ -9,6 +9,7 @@ import io
 import json
 import os
 import shutil
+import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -688,3 +689,67 @@ def test_an_allocation_beyond_the_memory_limit_is_one_line(tmp_path, bad_plugins
     line = one_line(done)
     assert "failed in training step" in line and "RuntimeError" in line, line
     assert "the checkpoint of step 0 is kept" in line, line
+
+
+HEADLESS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage")  # as root, in a container
+
+
+def _browser() -> str | None:
+    """Headless Chromium (Debian's `chromium`, installed by .ci/run). Where it is absent the page
+    tests skip, saying so, unless SMSPACE_REQUIRE_BROWSER is set (CI sets it): there they fail."""
+    found = shutil.which("chromium") or shutil.which("chromium-browser")
+    if found is None and os.environ.get("SMSPACE_REQUIRE_BROWSER"):
+        pytest.fail("SMSPACE_REQUIRE_BROWSER is set but no chromium is installed")
+    return found
+
+
+def _rendered(browser: str, page: Path, fragment: str, tmp_path: Path) -> list[tuple[str, str, str, bool]]:
+    """(entry, task, mode, hidden) of the table's rows, in the order the browser shows them once the
+    page's script has run on the view the fragment names."""
+    from html.parser import HTMLParser
+
+    profile = tmp_path / f"profile-{abs(hash(fragment))}"
+    done = subprocess.run(
+        [browser, *HEADLESS, f"--user-data-dir={profile}", "--dump-dom",
+         f"{page.as_uri()}#{fragment}"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows: list[tuple[str, str, str, bool]] = []
+
+    class Rows(HTMLParser):
+        def handle_starttag(self, tag, attrs):
+            a = dict(attrs)
+            if tag == "tr" and "data-entry" in a:
+                rows.append((a["data-entry"], a["data-task"], a["data-mode"], "hidden" in a))
+
+    Rows().feed(done.stdout)
+    return rows
+
+
+def test_the_page_sorts_filters_and_loads_nothing_in_a_real_browser(bench, tmp_path):
+    browser = _browser()
+    if browser is None:
+        pytest.skip("no chromium here (apt-get install chromium); CI installs it and requires it")
+    done = run_cmd("smtrain", "leaderboard", bench / "out", "--out", tmp_path / "b", "--html")
+    assert done.returncode == 0, done.stderr
+    page = tmp_path / "b" / "leaderboard.html"
+    text = page.read_text()
+    assert "default-src 'none'" in text and "http://" not in text and "https://" not in text  # loads nothing
+    table = json.loads((tmp_path / "b" / "leaderboard.json").read_text())["cells"]
+    d_metric = {(c["entry"], c["task"], c["mode"]): c["mean"] for c in table if c["score"] == "d_metric"}
+    everything = _rendered(browser, page, "", tmp_path)
+    assert sorted(r[:3] for r in everything) == sorted(d_metric) and not any(r[3] for r in everything)
+    ascending = _rendered(browser, page, "sort=d_metric&dir=asc", tmp_path)
+    means = [d_metric[r[:3]] for r in ascending]
+    assert means == sorted(means) and len(means) == len(d_metric), ascending  # the sort reorders the rows
+    descending = _rendered(browser, page, "sort=d_metric&dir=desc", tmp_path)
+    assert [d_metric[r[:3]] for r in descending] == sorted(means, reverse=True)
+    filtered = _rendered(browser, page, "task=grid&mode=MME&sort=entry", tmp_path)
+    shown = [r[:3] for r in filtered if not r[3]]
+    assert shown == sorted(k for k in d_metric if k[1:] == ("grid", "MME")) and len(shown) < len(filtered)
+    shot = tmp_path / "page.png"
+    subprocess.run([browser, *HEADLESS, f"--user-data-dir={tmp_path / 'p'}",
+                    f"--screenshot={shot}", "--window-size=1300,900", f"{page.as_uri()}#sort=d_metric"],
+                   capture_output=True, timeout=120, check=True)  # fmt: skip
+    assert shot.stat().st_size > 10_000  # a page was drawn, not a blank window

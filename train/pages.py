@@ -28,6 +28,7 @@ def write_atomically(path: Path, data: bytes) -> None:
     """Written beside and renamed over: a link planted at `path` is replaced, never followed."""
     with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", delete=False) as fh:
         fh.write(data)
+        os.fchmod(fh.fileno(), 0o644)  # a page is for reading (a temporary file is made 0600)
     os.replace(fh.name, path)
 
 
