@@ -82,6 +82,15 @@ def test_the_report_of_a_grid_compares_its_combinations(grid_study, tmp_path):
     assert len(runs) == 8 * 2 * 2 and "model" in runs[0]
     assert all(Path(r["path"], "config.json").exists() for r in runs)
     assert len({r["path"] for r in runs}) == len(runs)  # run names repeat across combinations, paths do not
+    from smspace.metrics.scores import scores_of
+    from smspace.train.run_dir import RunView
+
+    for r in runs[:: len(runs) // 4]:  # the bench's scores, measured on the h the last evaluation saved
+        run = RunView.open(r["path"])
+        measured = scores_of(*run.embeddings(int(r["step"])), run.config.seed)
+        assert float(r["probe_r2"]) == measured["probe_r2"] and float(r["local_dim"]) == measured["local_dim"], r
+        assert float(r["d_metric"]) == run.metrics()[-1]["d_metric"]  # the recorded metrics as recorded
+    assert "local-PCA dimension of h" in (out / "final.md").read_text().splitlines()[0]
     for variable in ("setup", "model", "n_h"):
         assert (out / f"compare_{variable}.png").stat().st_size > 10_000, variable
     images = rendered_images(out / "report.md")

@@ -22,6 +22,7 @@ from smspace.lake.store import StorageUnreachable, exists, where
 from smspace.lake.transitions import MODES
 from smspace.metrics import affine_projection
 from smspace.metrics.scores import SCORES
+from smspace.metrics.spatial import DegenerateRepresentation
 from smspace.metrics.spread import Spread, along, as_cell, grouped
 from smspace.train.colours import position_colours
 from smspace.train.pages import escape, record_files, recorded_files, refuse_inside, save_figure, write_text
@@ -31,6 +32,8 @@ from smspace.train.terms import terms
 MODE_COLOURS = {"MEM": "tab:red", "MM": "tab:green", "MME": "tab:blue"}
 # what a report shows of each evaluation: the loss, and the scores metrics/scores.py declares
 METRICS = (("eval_loss", "loss"), *((name, SCORES[name].title) for name in ("d_topo", "d_metric")))
+FROM_SAVED_H = ("probe_r2", "local_dim")  # the bench's other scores, measured on the h an evaluation saved
+COLUMNS = (*METRICS, *((name, SCORES[name].title) for name in FROM_SAVED_H))  # the tables' (figures: METRICS)
 
 
 @dataclass
@@ -42,15 +45,29 @@ class RunData:
     n_h: int = 3
     terms: dict[str, Any] = field(default_factory=dict)  # what its study's runs share (train/terms.py)
     identity: tuple[str, int] = ("", 0)  # (dataset, seed): the same run twice is one run
+    measured: dict[tuple[str, int], float] = field(default_factory=dict, repr=False)
 
     @property
     def name(self) -> str:
         return self.run.name
 
     def values(self, key: str, steps: list[int]) -> np.ndarray:
-        """`key` at the given steps, by step (never by row position)."""
+        """`key` at the given steps, by step (never by row position): a recorded metric, or a score
+        measured here on the h saved at that step, as smspace-bench measures it (metrics/scores.py,
+        the probe's folds drawn from the run's world seed)."""
+        if key in FROM_SAVED_H:
+            return np.array([self._measured(key, s) for s in steps], np.float64)
         by_step = {int(r["step"]): r[key] for r in self.rows}
         return np.array([by_step[s] for s in steps], np.float64)
+
+    def _measured(self, key: str, step: int) -> float:
+        if (key, step) not in self.measured:
+            h, p = self.run.embeddings(step)
+            try:
+                self.measured[key, step] = float(SCORES[key].compute(h, p, self.run.config.seed))
+            except DegenerateRepresentation:  # a collapsed h has no dimension nor probe: said as NaN
+                self.measured[key, step] = float("nan")
+        return self.measured[key, step]
 
 
 @dataclass
@@ -438,7 +455,7 @@ def final_table(study: Study, variables: Sequence[str] = ()) -> list[dict[str, A
     for mode, runs in by_mode(study.runs).items():
         row: dict[str, Any] = {"study": study.name, "setup": runs[0].setup, "n_h": runs[0].n_h, "mode": mode}
         row |= {"runs": len(runs), "step": study.final_step} | {v: cell(study.value(v)) for v in variables}
-        for key, _ in METRICS:
+        for key, _ in COLUMNS:
             spread = Spread.of([r.values(key, [study.final_step])[0] for r in runs])
             row[f"{key}_mean"], row[f"{key}_std"] = spread.mean, spread.std
         table.append(row)
@@ -448,7 +465,7 @@ def final_table(study: Study, variables: Sequence[str] = ()) -> list[dict[str, A
 def _metric_columns() -> str:
     """The metrics' column titles, each with the direction its score declares (D_topo ↓), as the
     leaderboard's headings have them."""
-    return " | ".join(f"{title} {SCORES[key].arrow}" if key in SCORES else title for key, title in METRICS)
+    return " | ".join(f"{title} {SCORES[key].arrow}".rstrip() if key in SCORES else title for key, title in COLUMNS)
 
 
 def _mean_and_std(values: np.ndarray) -> tuple[float, float]:
@@ -466,20 +483,20 @@ def write_tables(studies: list[Study], table: list[dict[str, Any]], out: Path, v
     runs = io.StringIO(newline="")
     writer = csv.writer(runs)
     writer.writerow(["run", "path", "study", "setup", "n_h", *variables, "mode", "step",
-                     "eval_loss", "d_topo", "d_metric"])  # fmt: skip
+                     *(key for key, _ in COLUMNS)])  # fmt: skip
     for study in studies:
         grid = [cell(study.value(v)) for v in variables]
         for r in study.runs:
-            at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
+            at = [r.values(k, [study.final_step])[0] for k, _ in COLUMNS]
             writer.writerow([r.name, r.run.url, study.name, r.setup, r.n_h, *grid, r.mode, study.final_step, *at])
     write_text(out / "runs.csv", runs.getvalue())
     extra = "".join(f" {v} |" for v in variables)
     lines = [
         f"| study | setup | N_h | mode | runs | step |{extra} {_metric_columns()} |",
-        "|---|---|---|---|---|---|" + "---|" * len(variables) + "---|---|---|",
+        "|---|---|---|---|---|---|" + "---|" * (len(variables) + len(COLUMNS)),
     ]
     for row in table:
-        cells = [as_cell(row[f"{k}_mean"], row[f"{k}_std"]) for k, _ in METRICS]
+        cells = [as_cell(row[f"{k}_mean"], row[f"{k}_std"]) for k, _ in COLUMNS]
         head = f"| {escape(row['study'])} | {row['setup']} | {row['n_h']} | {row['mode']} | "
         head += f"{row['runs']} | {row['step']} | "
         head += "".join(f"{escape(str(row[v]))} | " for v in variables)
@@ -575,16 +592,21 @@ def markdown_report(
             lines += [f"![{figure.stem}]({figure.name})", ""]
     for study in studies:
         lines += [f"## {study.name}: {study.label}", ""]
-        lines += [f"| mode | runs | step | {_metric_columns()} |", "|---|---|---|---|---|---|"]
+        lines += [f"| mode | runs | step | {_metric_columns()} |", "|---|---|---|" + "---|" * len(COLUMNS)]
         for row in (r for r in table if r["study"] == study.name):
-            cells = [as_cell(row[f"{k}_mean"], row[f"{k}_std"]) for k, _ in METRICS]
+            cells = [as_cell(row[f"{k}_mean"], row[f"{k}_std"]) for k, _ in COLUMNS]
             lines.append(f"| {row['mode']} | {row['runs']} | {row['step']} | " + " | ".join(cells) + " |")
         lines += ["", "Mean ± standard deviation over the runs (one world each) at the last step all reached.", ""]
         for figure in figures[study.name]:
             lines += [f"![{figure.stem}]({figure.name})", ""]
-        lines += ["### Runs", "", f"| run | mode | step | {_metric_columns()} |", "|---|---|---|---|---|---|"]
+        lines += [
+            "### Runs",
+            "",
+            f"| run | mode | step | {_metric_columns()} |",
+            "|---|---|---|" + "---|" * len(COLUMNS),
+        ]
         for r in study.runs:
-            at = [r.values(k, [study.final_step])[0] for k, _ in METRICS]
+            at = [r.values(k, [study.final_step])[0] for k, _ in COLUMNS]
             lines.append(
                 f"| {escape(r.name)} | {r.mode} | {study.final_step} | " + " | ".join(f"{v:.3g}" for v in at) + " |"
             )
