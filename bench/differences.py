@@ -65,6 +65,11 @@ def _paired(cell: dict[str, Any], reference: dict[str, Any]) -> float | None:
     return paired_p([mine[w] for w in shared], [theirs[w] for w in shared])
 
 
+def interval_text(cell: dict[str, Any]) -> str | None:
+    """The cell's interval as every page shows it ("[0.12, 0.15]"); None without one."""
+    return None if cell.get("ci") is None else f"[{cell['ci'][0]:.3g}, {cell['ci'][1]:.3g}]"
+
+
 def marks(cell: dict[str, Any]) -> str:
     """What a page shows beside a cell's value: "best", "floor"; "≈best", not told apart from the best;
     "≈floor", not told apart from the floor (a verdict of None, too few shared worlds, is not a

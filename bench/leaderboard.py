@@ -172,11 +172,8 @@ def _cell(table: list[dict[str, Any]], entry: str, task: str, mode: str, score: 
 def _shown(cell: dict[str, Any] | None) -> str:
     if cell is None:
         return "—"
-    shown = as_cell(cell["mean"], cell["std"])
-    if cell.get("ci") is not None:
-        shown += f" [{cell['ci'][0]:.3g}, {cell['ci'][1]:.3g}]"
-    said = differences.marks(cell)
-    return f"{shown} {said}" if said else shown
+    parts = [as_cell(cell["mean"], cell["std"]), differences.interval_text(cell), differences.marks(cell)]
+    return " ".join(part for part in parts if part)
 
 
 def markdown(table: list[dict[str, Any]], results: list[Result], head: dict[str, Any]) -> str:

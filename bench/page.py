@@ -175,8 +175,9 @@ def _score_cell(cell: dict[str, Any] | None) -> str:
     if cell is None:
         return '<td data-v="">—</td>'
     text = html.escape(as_cell(cell["mean"], cell["std"]))
-    if cell.get("ci") is not None:
-        text += f' <span class="ci">[{cell["ci"][0]:.3g}, {cell["ci"][1]:.3g}]</span>'
+    interval = differences.interval_text(cell)
+    if interval is not None:
+        text += f' <span class="ci">{html.escape(interval)}</span>'
     said = differences.marks(cell)
     if said:
         text += f' <span class="mark">{html.escape(said)}</span>'

@@ -67,9 +67,6 @@ class SweepRecord:
     def write(self, out: Store) -> None:
         out.put(STUDY, SWEEP_STUDY.encode(self.to_json()))
 
-    def with_terms(self, terms: dict[str, Any]) -> SweepRecord:
-        return replace(self, terms=terms)
-
     def with_ensembles(self, new: list[list[str]]) -> SweepRecord:
         """The record with `new` groups after those it holds (a group, once recorded, stays)."""
         return replace(self, ensembles=self.ensembles + tuple(tuple(g) for g in new))

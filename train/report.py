@@ -61,12 +61,13 @@ class RunData:
         return np.array([by_step[s] for s in steps], np.float64)
 
     def _measured(self, key: str, step: int) -> float:
-        if (key, step) not in self.measured:
+        if (key, step) not in self.measured:  # the step's h read once for all its scores
             h, p = self.run.embeddings(step)
-            try:
-                self.measured[key, step] = float(SCORES[key].compute(h, p, self.run.config.seed))
-            except DegenerateRepresentation:  # a collapsed h has no dimension nor probe: said as NaN
-                self.measured[key, step] = float("nan")
+            for name in FROM_SAVED_H:
+                try:
+                    self.measured[name, step] = float(SCORES[name].compute(h, p, self.run.config.seed))
+                except DegenerateRepresentation:  # a collapsed h has no dimension nor probe: said as NaN
+                    self.measured[name, step] = float("nan")
         return self.measured[key, step]
 
 
