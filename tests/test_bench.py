@@ -25,7 +25,15 @@ from smspace.train.run_dir import RunDir
 from .conftest import SAMPLES, run_cmd
 from .numerics import assert_same_weights
 
-BASELINES = ["random-encoder", "motor-autoencoder", "contrastive"]
+BASELINES = [
+    "random-encoder",
+    "motor-autoencoder",
+    "contrastive",
+    "beta-vae",
+    "latent-forward",
+    "displacement",
+    "slow-features",
+]
 
 
 def config(model: str, seed: int = 3, mode: str = "MM", steps: int = 40) -> TrainConfig:
@@ -280,12 +288,14 @@ def test_the_dimension_is_of_h_over_positions_not_of_its_clusters():
     assert local_pca_dimension(h) < 1.8 and SCORES["local_dim"].compute(h, p, 0) == 2.0
 
 
-def test_a_baseline_with_its_own_objective_trains_on_two_ranks(tmp_path):
+@pytest.mark.parametrize("model", ["motor-autoencoder", "beta-vae", "latent-forward"])
+def test_a_baseline_with_its_own_objective_trains_on_two_ranks(tmp_path, model):
     """DDP averages gradients only through the module it wraps: the objective goes through it
     (train/model.py, Method), or rank 1's weights would drift from rank 0's, which every
-    evaluation compares (a mismatch stops the run)."""
+    evaluation compares (a mismatch stops the run). The β-VAE's noise differs by rank (each its
+    own rows) and the latent forward model's EMA target follows identical weights on each rank."""
     out = tmp_path / "run"
-    args = ["smtrain", "fit", SAMPLES / "grid-seed0-MME", "--model", "motor-autoencoder", "--nproc", 2]
+    args = ["smtrain", "fit", SAMPLES / "grid-seed0-MME", "--model", model, "--nproc", 2]
     done = run_cmd(*args, "--steps", 60, "--eval-every", 30, "--out", out, timeout=300)
     assert done.returncode == 0, done.stderr
     run = RunDir.open(out)
@@ -302,3 +312,60 @@ def test_the_leaderboards_columns_follow_the_suites_order_of_tasks():
     table = [cell | {"task": task, "mode": mode} for task, mode in given]
     expected = [("grid", "MEM"), ("grid", "MME"), ("grid6", "MM"), ("arm", "MEM"), ("floor2", "MME"), ("floor24", "MM")]
     assert columns(table) == expected
+
+
+def test_a_models_noise_is_the_runs_own_and_repeats_from_its_seed():
+    """The engine's noise (train/engine.py, step_noise) depends on the run's seed, rank and step
+    alone: a run alone and stacked, and a resumed run, draw the same; two steps, two ranks or two
+    seeds draw different numbers."""
+    from smspace.train.engine import step_noise
+
+    cpu = torch.device("cpu")
+    both = step_noise([3, 4], 7, 0, 5, 6, cpu)
+    assert both.shape == (2, 5, 6) and torch.equal(both[0], step_noise([3], 7, 0, 5, 6, cpu)[0])
+    others = [step_noise([3], 8, 0, 5, 6, cpu), step_noise([3], 7, 1, 5, 6, cpu), both[1:]]
+    assert all(not torch.allclose(both[:1], o) for o in others)
+    assert abs(float(step_noise([0], 1, 0, 4000, 8, cpu).std()) - 1) < 0.05
+
+
+class StopAt:
+    """A sink that interrupts training once the run folder has committed step `step`."""
+
+    def __init__(self, step: int):
+        self.step = step
+
+    def on_evaluation(self, evaluation) -> None:
+        if evaluation.step == self.step:
+            raise KeyboardInterrupt
+
+    def on_finish(self, step: int, message: str) -> None: ...
+
+
+@pytest.mark.parametrize("model", ["beta-vae", "latent-forward"])
+def test_a_resumed_vae_or_ema_run_ends_bit_identical_to_one_never_stopped(tmp_path, model):
+    """Noise by (seed, rank, step) and an EMA target held in the checkpoint's buffers: stopping at
+    step 20 and resuming changes no byte of the weights at step 40."""
+    straight = RunDir.create(tmp_path / "straight", config(model), False)
+    fit(config(model), straight)
+    stopped = RunDir.create(tmp_path / "stopped", config(model), False)
+    with pytest.raises(KeyboardInterrupt):
+        fit(config(model), stopped, sinks=[StopAt(20)])
+    assert RunDir.open(stopped.view.local_path).view.checkpoint_step() == 20
+    fit(config(model), RunDir.open(stopped.view.local_path), resume=True)
+    a, b = weights(straight), weights(RunDir.open(stopped.view.local_path))
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_the_latent_forward_models_target_follows_its_encoder_as_an_average(tmp_path):
+    """The target is not trained by the optimiser but moved after each step: after 40 steps it has
+    left its initial weights and lies between them and the online encoder's."""
+    cfg = config("latent-forward")
+    run = RunDir.create(tmp_path / "run", cfg, False)
+    fit(cfg, run)
+    manifest = Dataset.open(cfg.dataset).manifest
+    shape = manifest.n_motor, math.prod(manifest.sensor_shape)
+    initial = build(run.view.config, *shape, torch.device("cpu"))[0].state_dict()
+    trained = weights(run)
+    start, target, online = initial["target.w0"], trained["target.w0"], trained["sensation.0.weight"]
+    assert torch.equal(start, initial["sensation.0.weight"])  # the target starts as a copy
+    assert 0 < float((target - start).norm()) < float((online - start).norm())

@@ -64,6 +64,8 @@ def fit(lake: Path, out: Path, *extra):
             "objective(m_t, s_t, m_t1, s_t1) gave shape (7,) on a probe batch of 7; it must give exactly a scalar",
         ),
         ("detached", "its training loss does not depend on any trainable parameter"),
+        ("paramstep", "after_step() changed parameter encoder.weight; it may change only buffers"),
+        ("manynoise", "noise_dim must be an int in 0..4096, not 'many'"),
     ],
 )
 def test_a_model_that_breaks_the_contract_is_refused_before_a_run_folder_is_written(tiny_lake, tmp_path, model, needle):

@@ -5,8 +5,10 @@ exactly (B, N_h), both finite; a model's own `objective(m_t, s_t, m_t1, s_t1)`, 
 a finite float32 scalar that backpropagates. Sweeps and `smtrain bench` train runs stacked (vmap,
 train/ensemble.py), so the probe also runs two stacked copies: what cannot run there (random ops
 such as torch.randn or dropout, `.item()`, data-dependent control flow) is refused here, not 90
-lines into a bench. The probe's batch sizes are not the only ones checked: the engine holds the
-real batches to the same shapes once per session and at every evaluation (`check_outputs`).
+lines into a bench; a model that needs noise asks the engine for it (`noise_dim`), and one with
+state of its own (`after_step()`) must update only buffers, alone and stacked alike. The probe's
+batch sizes are not the only ones checked: the engine holds the real batches to the same shapes
+once per session and at every evaluation (`check_outputs`).
 Broken, it is one line naming the model and what it gave.
 """
 
@@ -20,7 +22,15 @@ from smspace.common import plugins
 from smspace.common.errors import SmspaceError
 from smspace.common.limits import STEP_LIMIT_ENV, step_limit_s, time_limit
 from smspace.train.config import TrainConfig
-from smspace.train.model import build_model, has_objective, model_label, model_plugin, prediction_loss
+from smspace.train.model import (
+    build_model,
+    has_after_step,
+    has_objective,
+    model_label,
+    model_plugin,
+    noise_dim,
+    prediction_loss,
+)
 
 
 def probe_batch_size(*sizes: int) -> int:
@@ -61,10 +71,13 @@ def _probe(cfg: TrainConfig, n_motor: int, n_sensor: int, stacked: bool) -> None
         _expect(label, "encode(m)", h, (batch, n_h), batch, f"(B, N_h) = ({batch}, {n_h})")
         if not any(p.requires_grad for p in model.parameters()):
             raise SmspaceError(f"{label} has no trainable parameters")
+        with plugins.guarded(plugin, "in its noise_dim"):
+            dim = noise_dim(model, label)
+        noise = [torch.randn(batch, dim, generator=generator)] if dim else []
         if has_objective(model):
             s_t1 = torch.rand(batch, n_sensor, generator=generator)
             with plugins.guarded(plugin, "in objective() on a probe batch"):
-                loss = model.objective(m_t, s_t, m_t1, s_t1)
+                loss = model.objective(m_t, s_t, m_t1, s_t1, *noise)
             _expect(label, "objective(m_t, s_t, m_t1, s_t1)", loss, (), batch, "a scalar, shape () (the batch's mean)")
         else:
             loss = prediction_loss(pred, s_t)
@@ -72,8 +85,23 @@ def _probe(cfg: TrainConfig, n_motor: int, n_sensor: int, stacked: bool) -> None
             raise SmspaceError(f"{label}: its training loss does not depend on any trainable parameter")
         with plugins.guarded(plugin, "in backward() on a probe batch"):
             loss.backward()
+        if has_after_step(model):
+            with plugins.guarded(plugin, "in after_step()"):
+                _check_after_step(model, label)
         if stacked:
-            _check_stacked(model, label, (m_t, s_t, m_t1, torch.rand(batch, n_sensor, generator=generator)))
+            inputs = (m_t, s_t, m_t1, torch.rand(batch, n_sensor, generator=generator), *noise)
+            _check_stacked(model, label, inputs)
+
+
+def _check_after_step(model: torch.nn.Module, label: str) -> None:
+    """after_step() may change the model's buffers, in place, never its parameters (the optimiser's:
+    a change there would go unrecorded in Adam's state and differ under DDP's averaging)."""
+    before = {k: v.detach().clone() for k, v in model.named_parameters()}
+    with torch.no_grad():
+        model.after_step()
+    moved = [k for k, v in model.named_parameters() if not torch.equal(v, before[k])]
+    if moved:
+        raise SmspaceError(f"{label}: after_step() changed parameter {moved[0]}; it may change only buffers")
 
 
 def _check_stacked(model: torch.nn.Module, label: str, batch: tuple[torch.Tensor, ...]) -> None:
@@ -87,6 +115,20 @@ def _check_stacked(model: torch.nn.Module, label: str, batch: tuple[torch.Tensor
     try:
         loss = stacked.objective(*two) if has_objective(model) else prediction_loss(stacked.forward(*two[:3]), two[3])
         loss.sum().backward()
+        if has_after_step(model):
+            alone = copy.deepcopy(model)
+            with torch.no_grad():
+                alone.after_step()
+            stacked.after_step()
+            expected, got = alone.state_dict(), stacked.run_state(1)
+            differs = [k for k in expected if not torch.allclose(got[k], expected[k], rtol=1e-5, atol=1e-6)]
+            if differs:
+                raise SmspaceError(
+                    f"{label}: after_step() on a stacked copy did not update {differs[0]} as it does alone "
+                    f"(it must change its buffers in place, with tensor operations only)"
+                )
+    except SmspaceError:
+        raise
     except Exception as e:  # whatever vmap refuses: one line, as raised
         raise SmspaceError(
             f"{label} cannot be trained stacked (sweeps and `smtrain bench` train runs together with "

@@ -33,7 +33,15 @@ from smspace.train.config import TrainConfig
 from smspace.train.contract import check_outputs
 from smspace.train.distributed import SINGLE, Ranks, lost_a_peer, mean_over_ranks, ranks_agree
 from smspace.train.ensemble import Stacked, adam_state_of_run, load_adam_state
-from smspace.train.model import Method, build_model, has_objective, model_label, prediction_loss
+from smspace.train.model import (
+    Method,
+    build_model,
+    has_after_step,
+    has_objective,
+    model_label,
+    noise_dim,
+    prediction_loss,
+)
 from smspace.train.precision import autocast, compiled
 from smspace.train.worker_batches import worker_batches
 
@@ -143,14 +151,27 @@ def step_loss(
     lone model and a stacked ensemble alike (whose losses are each run's own, (R,)). `objective`:
     `forward` is the model's own objective, given s_t1 too (train/model.py, has_objective)."""
 
-    def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
+    def loss(m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor, *noise) -> torch.Tensor:
         with autocast(precision, device):
             if objective:
-                return forward(m_t, s_t, m_t1, s_t1).float()
+                return forward(m_t, s_t, m_t1, s_t1, *noise).float()
             pred = forward(m_t, s_t, m_t1)
         return prediction_loss(pred.float(), s_t1)
 
     return loss
+
+
+def step_noise(seeds: Sequence[int], step: int, rank: int, rows: int, dim: int, device: torch.device) -> torch.Tensor:
+    """(R, rows, dim) standard normals, run r's for this step (train/model.py, noise_dim): drawn on
+    the CPU by a generator seeded from (run seed, rank, step) alone, so a run's noise is the same
+    alone or stacked, on any device, and after a resume, with no generator state to checkpoint;
+    each rank of a DDP run, training on its own rows, draws its own."""
+    draws = []
+    for seed in seeds:
+        entropy = np.random.SeedSequence([seed % 2**63, rank, step]).generate_state(1, np.uint64)[0]
+        generator = torch.Generator().manual_seed(int(entropy))
+        draws.append(torch.randn(rows, dim, generator=generator))
+    return torch.stack(draws).to(device)
 
 
 N_PREDICTIONS = 16  # predicted vs true s_t1 kept per evaluation, for viewers and reports
@@ -183,8 +204,9 @@ class Learner(Protocol):
 
     def set_lr(self, lr: float) -> None: ...
 
-    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
-        """One optimiser step on batch r for run r; returns the (R,) losses, detached."""
+    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]], step: int) -> torch.Tensor:
+        """Optimiser step `step` (1, 2, …) on batch r for run r, then each model's after_step();
+        returns the (R,) losses, detached."""
         ...
 
     def check_batch(self, batches: Sequence[tuple[torch.Tensor, ...]], label: str) -> None:
@@ -217,9 +239,11 @@ class SingleLearner:
         ranks: Ranks = SINGLE,
         precision: str = "fp32",
         compile: bool = False,
+        seed: int = 0,
     ):
         self.model, self.optimizer, self.data, self.ranks = model, optimizer, data, ranks
-        self.precision, self.compile = precision, compile
+        self.precision, self.compile, self.seed = precision, compile, seed
+        self.noise_dim, self.after_step = noise_dim(model), has_after_step(model)
         self._trained: torch.nn.Module | None = None
         self._loss: Callable | None = None
 
@@ -243,13 +267,19 @@ class SingleLearner:
             self._loss = compiled(loss, self.compile)
         return self._loss
 
-    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
+    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]], step: int) -> torch.Tensor:
         device = self.data.m_regular.device
         m_t, s_t, m_t1, s_t1 = (x.to(device, non_blocking=True) for x in batches[0])
-        loss = self._step_loss()(m_t, s_t, m_t1, s_t1)
+        noise = []
+        if self.noise_dim:
+            noise = [step_noise([self.seed], step, self.ranks.rank, len(m_t), self.noise_dim, device)[0]]
+        loss = self._step_loss()(m_t, s_t, m_t1, s_t1, *noise)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
+        if self.after_step:
+            with torch.no_grad():
+                self.model.after_step()
         return loss.detach().reshape(1)
 
     @torch.no_grad()
@@ -257,7 +287,9 @@ class SingleLearner:
         device = self.data.m_regular.device
         m_t, s_t, m_t1, s_t1 = (x.to(device) for x in batches[0])
         pred = self.model(m_t, s_t, m_t1)
-        loss = self.model.objective(m_t, s_t, m_t1, s_t1) if has_objective(self.model) else prediction_loss(pred, s_t1)
+        noise = [m_t.new_zeros(len(m_t), self.noise_dim)] if self.noise_dim else []
+        own = has_objective(self.model)
+        loss = self.model.objective(m_t, s_t, m_t1, s_t1, *noise) if own else prediction_loss(pred, s_t1)
         check_outputs(label, loss, pred, s_t1, stacked=False)
 
     @torch.no_grad()
@@ -288,6 +320,7 @@ class EnsembleLearner:
     ):
         self.stacked = Stacked([build(cfg, n_motor, n_sensor, device)[0] for cfg in cfgs])
         self.optimizer = adam(self.stacked.parameters(), cfgs[0].lr_start)
+        self.seeds, self.noise_dim = [cfg.seed for cfg in cfgs], noise_dim(self.stacked.model)
         own = has_objective(self.stacked.model)
         forward = self.stacked.objective if own else self.stacked.forward
         loss = step_loss(forward, cfgs[0].precision, data[0].m_regular.device, own)
@@ -300,13 +333,15 @@ class EnsembleLearner:
         for group in self.optimizer.param_groups:
             group["lr"] = lr
 
-    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]]) -> torch.Tensor:
+    def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]], step: int) -> torch.Tensor:
         device = self.m_regular.device
         m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(device) for k in range(4))
-        per_run = self._loss(m_t, s_t, m_t1, s_t1)
+        noise = [step_noise(self.seeds, step, 0, m_t.shape[1], self.noise_dim, device)] if self.noise_dim else []
+        per_run = self._loss(m_t, s_t, m_t1, s_t1, *noise)
         self.optimizer.zero_grad(set_to_none=True)
         per_run.sum().backward()  # parameters are disjoint: each run gets exactly its own gradient
         self.optimizer.step()
+        self.stacked.after_step()
         return per_run.detach()
 
     @torch.no_grad()
@@ -314,7 +349,8 @@ class EnsembleLearner:
         m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(self.m_regular.device) for k in range(4))
         pred = self.stacked.forward(m_t, s_t, m_t1)
         own = has_objective(self.stacked.model)
-        loss = self.stacked.objective(m_t, s_t, m_t1, s_t1) if own else prediction_loss(pred, s_t1)
+        noise = [m_t.new_zeros(*m_t.shape[:2], self.noise_dim)] if self.noise_dim else []
+        loss = self.stacked.objective(m_t, s_t, m_t1, s_t1, *noise) if own else prediction_loss(pred, s_t1)
         check_outputs(label, loss, pred, s_t1, stacked=True)
 
     @torch.no_grad()
@@ -489,7 +525,7 @@ def train(
                     if first or (step + 1) % cfg.eval_every == 0 or step + 1 == cfg.steps:
                         learner.check_batch(batch, label)  # the real batches, not only the contract's probe sizes
                         first = False
-                    losses = mean_over_ranks(learner.train_step(batch), ranks)
+                    losses = mean_over_ranks(learner.train_step(batch, step + 1), ranks)
             except SmspaceError:
                 raise
             except Exception as e:  # a model's step (a loss detached late, memory): one line

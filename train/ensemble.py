@@ -16,7 +16,7 @@ import torch
 from torch import nn
 from torch.func import functional_call, stack_module_state, vmap
 
-from smspace.train.model import Method
+from smspace.train.model import Effect, Method, has_after_step
 
 
 class Stacked:
@@ -30,6 +30,7 @@ class Stacked:
         self.model = base  # the architecture (meta tensors): what it is, not its weights
         self._forward = vmap(lambda p, b, *x: functional_call(base, (p, b), x))
         self._encode, self._objective = _vmapped(Method(base, "encode")), _vmapped(Method(base, "objective"))
+        self._after_step = _vmapped(Effect(base, "after_step")) if has_after_step(base) else None
 
     def parameters(self) -> list[torch.Tensor]:
         return list(self.params.values())  # named_parameters order: the lone optimiser's indices
@@ -40,9 +41,16 @@ class Stacked:
     def encode(self, m: torch.Tensor) -> torch.Tensor:
         return self._encode(self.params, self.buffers, m)
 
-    def objective(self, m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
-        """Each run's own loss, (R,), for models that define one (train/model.py, has_objective)."""
-        return self._objective(self.params, self.buffers, m_t, s_t, m_t1, s_t1)
+    def objective(self, *inputs: torch.Tensor) -> torch.Tensor:
+        """Each run's own loss, (R,), for models that define one (train/model.py, has_objective):
+        (m_t, s_t, m_t1, s_t1), and each run's noise where the model asks for it."""
+        return self._objective(self.params, self.buffers, *inputs)
+
+    @torch.no_grad()
+    def after_step(self) -> None:
+        """Each run's after_step() on its own slice: its buffers change in place, as a lone model's."""
+        if self._after_step is not None:
+            self._after_step(self.params, self.buffers)
 
     def run_state(self, r: int) -> dict[str, torch.Tensor]:
         tensors = self.params | self.buffers

@@ -320,7 +320,9 @@ def fit(
         member, ds = open_member(run, cfg, device, ranks)
         cfg, shape = member.cfg, _shape(ds.manifest)
         model, optimizer = engine.build(cfg, *shape, device)
-        learner = engine.SingleLearner(model, optimizer, member.data, ranks, cfg.precision, compiles(decision))
+        learner = engine.SingleLearner(
+            model, optimizer, member.data, ranks, cfg.precision, compiles(decision), seed=cfg.seed
+        )
         step = resume_from_folders(learner, [member], [run], device, shape, ranks) if resume else 0
         with peer_errors(ranks):
             engine.train(learner, [member], step, [RunFolders([run]), *sinks], ranks=ranks)

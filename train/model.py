@@ -5,6 +5,10 @@ A model is a torch module built as `Model(n_motor, n_sensor, n_h, encoder_layers
 **params)` with `encode(m) -> h` and `forward(m_t, s_t, m_t1) -> predicted s_t1`. Another package
 registers one under the entry-point group `smspace.models` (docs/API.md, "Plugins"); `smtrain fit
 --model NAME` and study files name it, and config.json records its name and parameters.
+
+Two optional hooks give a model what a lone run, a stacked ensemble and DDP must all treat alike:
+`noise_dim` (standard-normal noise drawn by the engine from the run's seed, handed to its objective)
+and `after_step()` (state of its own, such as an EMA target, updated after each optimiser step).
 """
 
 from __future__ import annotations
@@ -91,6 +95,31 @@ def has_objective(model: nn.Module) -> bool:
     return callable(getattr(model, "objective", None))
 
 
+NOISE_LIMIT = 4096  # standard-normal numbers per row a model may ask for
+
+
+def noise_dim(model: nn.Module, label: str = "") -> int:
+    """How many standard-normal numbers per row of a batch a model's objective is given (its
+    `noise_dim` attribute; 0 or absent: none). A model must not draw them itself: torch.randn would
+    differ between a lone run and the same run stacked (vmap has no per-run generator) and could not
+    be repeated from the run's seed. The engine draws them instead (train/engine.py, step_noise) and
+    passes them as `objective(m_t, s_t, m_t1, s_t1, noise)`, noise (B, noise_dim)."""
+    dim, who = getattr(model, "noise_dim", 0), label or type(model).__name__
+    if isinstance(dim, bool) or not isinstance(dim, int) or not 0 <= dim <= NOISE_LIMIT:
+        raise SmspaceError(f"{who}: noise_dim must be an int in 0..{NOISE_LIMIT}, not {dim!r:.40}")
+    if dim and not has_objective(model):
+        raise SmspaceError(f"{who} asks for noise (noise_dim) but has no objective() to be given it")
+    return dim
+
+
+def has_after_step(model: nn.Module) -> bool:
+    """Whether a model updates state of its own after each optimiser step, `after_step()` (called
+    under no_grad): a target network that follows the online one as an exponential moving average.
+    It may change only the model's buffers, in place; parameters are the optimiser's (the contract
+    checks both, and that two stacked copies update as each would alone)."""
+    return callable(getattr(model, "after_step", None))
+
+
 class Method(nn.Module):
     """One method of a model as a module's forward: what DDP wraps (its gradient hooks fire only
     through forward) and what an ensemble's functional_call runs."""
@@ -101,6 +130,14 @@ class Method(nn.Module):
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         return getattr(self.model, self.name)(*inputs)
+
+
+class Effect(Method):
+    """A method called for what it changes (after_step): vmap needs a tensor back, so a 0 stands in."""
+
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        getattr(self.model, self.name)(*inputs)
+        return torch.zeros(())
 
 
 def model_plugin(name: str) -> Plugin | None:

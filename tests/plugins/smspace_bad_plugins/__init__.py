@@ -181,6 +181,34 @@ class RandomOpNet(SoundNet):
         return super().forward(m_t, s_t, m_t1) + 0.01 * torch.randn(len(m_t), s_t.shape[1])
 
 
+class ParameterStepNet(SoundNet):
+    """Its after_step() moves a parameter, which is the optimiser's to move."""
+
+    def after_step(self):
+        next(self.parameters()).mul_(0.5)
+
+
+class AssignedStepNet(SoundNet):
+    """Its after_step() rebinds a buffer rather than changing it in place: alone that works, but a
+    stacked copy's buffer never changes."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.register_buffer("average", torch.zeros(()))
+
+    def after_step(self):
+        self.average = self.average * 0.5 + 1.0
+
+
+class ManyNoiseNet(SoundNet):
+    """Asks for noise in a form that is not a count."""
+
+    noise_dim = "many"
+
+    def objective(self, m_t, s_t, m_t1, s_t1, noise):
+        return (self(m_t, s_t, m_t1) - s_t1).pow(2).sum(dim=-1).mean()
+
+
 class ItemNet(SoundNet):
     """Reads a value out of a tensor (.item()): fine alone, not under vmap."""
 
