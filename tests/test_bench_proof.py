@@ -754,3 +754,17 @@ def test_the_page_sorts_filters_and_loads_nothing_in_a_real_browser(bench, tmp_p
                     f"--screenshot={shot}", "--window-size=1300,900", f"{page.as_uri()}#sort=d_metric"],
                    capture_output=True, timeout=120, check=True)  # fmt: skip
     assert shot.stat().st_size > 10_000  # a page was drawn, not a blank window
+
+
+def test_the_published_quick_leaderboard_follows_from_its_evidence(tmp_path):
+    """docs/bench/quick is what `smtrain leaderboard` makes of the results beside it: every score
+    recomputed from each result's evidence (the positions from the task's own worlds) and checked,
+    and the table and its JSON written again byte for byte."""
+    root = Path(__file__).resolve().parents[1]
+    docs = root / "docs/bench/quick"
+    made = run_cmd("smtrain", "leaderboard", "docs/bench/quick/results", "--out", tmp_path / "out", cwd=root)
+    assert made.returncode == 0, made.stderr
+    for name in ("leaderboard.md", "leaderboard.json"):
+        assert (tmp_path / "out" / name).read_bytes() == (docs / name).read_bytes(), name
+    cells = json.loads((docs / "leaderboard.json").read_text())["cells"]
+    assert len({cell["entry"] for cell in cells}) == 9 and {len(cell["values"]) for cell in cells} == {6}
