@@ -47,3 +47,19 @@ def affine_map(h_fit: np.ndarray, p_fit: np.ndarray, h_new: np.ndarray) -> np.nd
 
     coef, *_ = np.linalg.lstsq(design(h_fit), p_fit, rcond=RANK_TOLERANCE)
     return design(h_new) @ coef
+
+
+def on_the_torus(p: np.ndarray, period: float) -> np.ndarray:
+    """Each coordinate of p as the angle it makes on a circle of circumference `period`, (cos, sin):
+    p modulo the period, which a representation of a world that repeats every `period` may encode
+    instead of p itself."""
+    angle = 2 * np.pi * np.asarray(p, np.float64) / period
+    return np.hstack([np.cos(angle), np.sin(angle)])
+
+
+def torus_probe_r2(h: np.ndarray, p: np.ndarray, period: float, folds: int = FOLDS, seed: int = 0) -> float:
+    """Held-out R² of p modulo `period` (on_the_torus) predicted from h by an affine map: whether h
+    learned the torus a periodic world allows, where probe_r2 asks for the plane."""
+    if not period > 0:
+        raise ValueError(f"a period is > 0, not {period}")
+    return probe_r2(h, on_the_torus(p, period), folds, seed)

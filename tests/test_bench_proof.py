@@ -768,3 +768,21 @@ def test_the_published_quick_leaderboard_follows_from_its_evidence(tmp_path):
         assert (tmp_path / "out" / name).read_bytes() == (docs / name).read_bytes(), name
     cells = json.loads((docs / "leaderboard.json").read_text())["cells"]
     assert len({cell["entry"] for cell in cells}) == 9 and {len(cell["values"]) for cell in cells} == {6}
+
+
+def test_the_torus_probe_reads_the_published_results_and_agrees_with_their_probe(tmp_path):
+    """benchmarks/torus_probe.py on the quick results (the grid's 10-cell torus, which the agent
+    never wraps): a row per entry and mode over all 6 worlds, and its plane probe the very probe
+    R² the leaderboard shows."""
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [sys.executable, str(root / "benchmarks/torus_probe.py"), str(root / "docs/bench/quick/results"),
+         "--period", "10"], capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    rows = json.loads(done.stdout)["rows"]
+    assert len(rows) == 27 and {r["worlds"] for r in rows} == {6}
+    cells = json.loads((root / "docs/bench/quick/leaderboard.json").read_text())["cells"]
+    shown = {(c["entry"], c["mode"]): c["mean"] for c in cells if c["score"] == "probe_r2"}
+    assert all(abs(r["plane_mean"] - shown[(r["entry"], r["mode"])]) < 1e-12 for r in rows)
+    assert all(-10 < r["torus_mean"] <= 1 for r in rows)

@@ -143,6 +143,23 @@ def test_the_probe_scores_positions_on_states_it_was_not_fitted_on():
         probe_r2(encoded, np.zeros((125, 2)))
 
 
+def test_the_torus_probe_tells_a_learned_torus_from_a_learned_plane():
+    """On a floor whose view repeats every metre over a 3 m working space, an h of p modulo the
+    period predicts the torus and not the plane, an h of p the plane and not the torus; where the
+    period is far wider than the space, the two agree."""
+    from smspace.metrics.probe import on_the_torus, probe_r2, torus_probe_r2
+
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-1.5, 1.5, size=(400, 2))
+    torus = on_the_torus(p, 1.0) @ rng.normal(size=(4, 4))  # a learned torus, linearly mixed
+    assert torus_probe_r2(torus, p, 1.0) > 0.999 and probe_r2(torus, p) < 0.1
+    plane = p @ rng.normal(size=(2, 3))
+    assert probe_r2(plane, p) > 0.999 and torus_probe_r2(plane, p, 1.0) < 0.1
+    assert torus_probe_r2(plane, p, 24.0) > 0.98  # no repeat in reach: the torus is nearly the plane
+    with pytest.raises(ValueError, match="a period is > 0"):
+        torus_probe_r2(plane, p, 0.0)
+
+
 def test_local_pca_reads_a_lattices_dimension_where_two_nn_diverges():
     """The bench's regular samplings are lattices (the grid's 5×5 positions, the arm's joint
     angles): there TwoNN's r₂ / r₁ is 1 and it diverges; local PCA counts the lattice's directions."""
