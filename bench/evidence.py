@@ -20,8 +20,9 @@ EVIDENCE = "evidence"
 DTYPES = ("<f8", "<f4")  # h as the run gave it: float64 (isomap, an ensemble's evaluation) or float32
 
 
-def file_of(world: int, mode: str) -> str:
-    return f"h-{world}-{mode}.npy"
+def file_of(world: int, mode: str, step: int | None = None) -> str:
+    """The last evaluation's h, or (step) an earlier evaluation's."""
+    return f"h-{world}-{mode}.npy" if step is None else f"h-{world}-{mode}-step{step}.npy"
 
 
 def npy_bytes(h: np.ndarray) -> bytes:
@@ -34,13 +35,13 @@ def sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def save(folder: Store, world: int, mode: str, h: np.ndarray) -> tuple[str, str]:
+def save(folder: Store, world: int, mode: str, h: np.ndarray, step: int | None = None) -> tuple[str, str]:
     """Writes h; returns (its file name, its sha256)."""
     data = npy_bytes(h)
     evidence = folder.child(EVIDENCE)
     evidence.make()
-    evidence.put(file_of(world, mode), data)
-    return file_of(world, mode), sha256(data)
+    evidence.put(file_of(world, mode, step), data)
+    return file_of(world, mode, step), sha256(data)
 
 
 def load(folder: Store, name: str, digest: str, shape: tuple[int, int]) -> np.ndarray:

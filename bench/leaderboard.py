@@ -17,7 +17,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from smspace.bench import differences, page
+from smspace.bench import budget, differences, page
 from smspace.bench.run import BENCH
 from smspace.bench.suite import get_suite
 from smspace.bench.verify import NotScored, Result, verify
@@ -154,13 +154,22 @@ def _write_one(results: list[Result], out: Path, html: bool = False) -> list[Pat
     head = {"suite": results[0].suite, "versions": versions, "results": sorted(r.where for r in results),
             "differences": differences.PROTOCOL}  # fmt: skip
     paths = [out / "leaderboard.json", out / "leaderboard.md", out / "leaderboard.png"]
-    write_atomically(paths[0], (json.dumps(head | {"cells": table}, indent=1, allow_nan=False) + "\n").encode())
-    write_atomically(paths[1], markdown(table, results, head).encode())
+    curves = budget.curves(results, row_names(results))
+    ranked = budget.rankings(curves)
+    budgets = {"budgets": {"curves": curves, "rankings": ranked}} if curves else {}
+    write_atomically(
+        paths[0], (json.dumps(head | {"cells": table} | budgets, indent=1, allow_nan=False) + "\n").encode()
+    )
+    write_atomically(paths[1], (markdown(table, results, head) + "\n".join(budget.markdown(ranked))).encode())
     figure(table, paths[2], head)
+    budget_png = out / "budget.png"
+    if budget.figure(curves, budget_png, f"smspace-bench {head['suite']}: scores against steps"):
+        paths.append(budget_png)
     if html:
         paths.append(out / "leaderboard.html")
-        text = page.page(table, results, row_names(results), head, paths[2].read_bytes(), out)
-        write_atomically(paths[3], text.encode())
+        drawn = budget_png.read_bytes() if curves else None
+        text = page.page(table, results, row_names(results), head, paths[2].read_bytes(), out, ranked, drawn)
+        write_atomically(paths[-1], text.encode())
     return paths
 
 

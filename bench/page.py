@@ -100,9 +100,12 @@ def page(
     head: dict[str, Any],
     figure: bytes,
     out: Path,
+    ranked: list[dict[str, Any]] = (),
+    budget_figure: bytes | None = None,
 ) -> str:
     """The page's text: one row per entry, task and mode; a column per score (mean ± std, its
-    interval, its marks), the wall time and the result's files."""
+    interval, its marks), the wall time and the result's files; and, where results carry scores at
+    earlier evaluations, whether each ranking is settled (bench/budget.py)."""
     e = html.escape
     shown_rows = _rows(table, results, shown)
     tasks = sorted({c["task"] for c in table})
@@ -134,6 +137,7 @@ def page(
     )
     protocol = "".join(f"<li>{e(k)}: {e(str(v))}</li>" for k, v in head["differences"].items())
     image = base64.b64encode(figure).decode()
+    budget = _budget(ranked, budget_figure)
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8">
 <meta http-equiv="Content-Security-Policy" content="{POLICY}">
@@ -153,7 +157,7 @@ over the entries. Click a heading to sort; the address keeps the view, to link t
 <h2>The figure</h2>
 <img alt="each entry's mean and spread over worlds, per task and mode, one panel per score"
  src="data:image/png;base64,{image}">
-<h2>The entries</h2><dl>{entries}</dl>
+{budget}<h2>The entries</h2><dl>{entries}</dl>
 <h2>How differences are told</h2><ul>{protocol}</ul>
 <script>{SCRIPT}</script>
 </body></html>
@@ -209,3 +213,26 @@ def _description(name: str) -> str:
         return "(its code is not installed here)"
     doc = inspect.getdoc(thing) or ""
     return " ".join(doc.split("\n\n")[0].split()) or "(no description)"
+
+
+def _budget(ranked: list[dict[str, Any]], figure: bytes | None) -> str:
+    """The budget's section: per task, mode and score, settled or not, and the last ranking."""
+    if not ranked:
+        return ""
+    e = html.escape
+    rows = []
+    for r in ranked:
+        said = "yes" if r["settled"] else f"no (changed at step {r['last_change']})"
+        cells = (r["task"], r["mode"], SCORES[r["score"]].title, said, " > ".join(r["order"][-1]))
+        rows.append("<tr>" + "".join(f"<td>{e(str(c))}</td>" for c in cells) + "</tr>")
+    image = (
+        f'<img alt="D_metric and the probe against steps, per task and mode, a line per entry" '
+        f'src="data:image/png;base64,{base64.b64encode(figure).decode()}">'
+        if figure
+        else ""
+    )
+    return (
+        "<h2>Budget: the ranking against steps</h2><p>Settled: the last evaluation left the ranking of the "
+        "one before unchanged.</p><table><thead><tr><th>task</th><th>mode</th><th>score</th><th>settled</th>"
+        f"<th>ranking at the last step (best first)</th></tr></thead><tbody>{''.join(rows)}</tbody></table>{image}\n"
+    )

@@ -20,6 +20,7 @@ from smspace.metrics.scores import SCORES
 MAX_WALL_S = 10 * 365 * 86400.0  # a session longer than ten years is not a measurement
 MAX_SESSIONS = 10_000
 MAX_DATASETS = 100_000
+MAX_CURVE = 1000  # evaluations before the last that a row may carry scores of
 OUTCOMES = ("ended", "failed")  # a session killed before it could say has none
 
 
@@ -129,6 +130,33 @@ class BenchRecord:
 
 
 @dataclass(frozen=True)
+class CurvePoint:
+    """A row's scores at an evaluation before its last, with the evidence they follow from: what
+    the task's budget is judged on (docs/BENCHMARK.md, "Budgets")."""
+
+    step: int
+    scores: dict[str, float]
+    h: str
+    h_sha256: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"step": self.step, "h": self.h, "h_sha256": self.h_sha256, **self.scores}
+
+    @classmethod
+    def parse(cls, raw: Any, where: str) -> CurvePoint:
+        point = table(raw, where)
+        step, h, digest = point.get("step"), point.get("h"), point.get("h_sha256")
+        if not isinstance(step, int) or isinstance(step, bool) or step < 0:
+            raise SmspaceError(f"{where} is at step {shown(step)}, not a step")
+        for name in SCORES:
+            if not finite(point.get(name), -math.inf, math.inf):
+                raise SmspaceError(f"{where} has {name} {shown(point.get(name))}, not a number it can take")
+        if not isinstance(h, str) or not isinstance(digest, str):
+            raise SmspaceError(f"{where} names no evidence (h, h_sha256)")
+        return cls(step, {name: float(point[name]) for name in SCORES}, h, digest)
+
+
+@dataclass(frozen=True)
 class ScoredRow:
     """One world and mode of a result: the step and wall time it was scored at, its scores (those
     of metrics/scores.py) and the evidence they follow from (bench/evidence.py: h's file and sha256)."""
@@ -141,10 +169,12 @@ class ScoredRow:
     scores: dict[str, float]
     h: str
     h_sha256: str
+    curve: tuple[CurvePoint, ...] = ()  # the evaluations before `step`, in order (none: not recorded)
 
     def to_json(self) -> dict[str, Any]:
+        curve = {"curve": [point.to_json() for point in self.curve]} if self.curve else {}
         return {"world": self.world, "mode": self.mode, "step": self.step, "wall_s": self.wall_s, "run": self.run,
-                "h": self.h, "h_sha256": self.h_sha256, **self.scores}  # fmt: skip
+                "h": self.h, "h_sha256": self.h_sha256, **self.scores, **curve}  # fmt: skip
 
     @classmethod
     def parse(cls, raw: Any, where: str, index: int) -> ScoredRow:
@@ -167,7 +197,11 @@ class ScoredRow:
             raise SmspaceError(f"{where}: row {index} names no evidence (h, h_sha256) of world {world}, mode {mode}")
         run = row.get("run", "")
         scores = {name: float(row[name]) for name in SCORES}
-        return cls(world, mode, step, float(wall), run if isinstance(run, str) else "", scores, h, digest)
+        curve = row.get("curve", [])
+        if not isinstance(curve, list) or len(curve) > MAX_CURVE:
+            raise SmspaceError(f"{where}: row {index} has a curve of {shown(curve)}, not a list of evaluations")
+        points = tuple(CurvePoint.parse(c, f"{where}: row {index}, evaluation {j}") for j, c in enumerate(curve))
+        return cls(world, mode, step, float(wall), run if isinstance(run, str) else "", scores, h, digest, points)
 
 
 @dataclass(frozen=True)

@@ -25,8 +25,8 @@ import numpy as np
 from smspace.bench import evidence
 from smspace.bench.names import canonical_name, canonical_params, folder_of, label_of, model_defaults
 from smspace.bench.representations import REPRESENTATIONS
-from smspace.bench.result import BenchRecord, ScoredRow, ScoresRecord, Session
-from smspace.bench.scores import run_scores
+from smspace.bench.result import BenchRecord, CurvePoint, ScoredRow, ScoresRecord, Session
+from smspace.bench.scores import run_curve, run_scores
 from smspace.bench.suite import Suite, Task, datasets_hash
 from smspace.common.cli import default_workers
 from smspace.common.differing import differing
@@ -283,11 +283,15 @@ def _train(
     rows = []
     for run in runs:
         row, h = run_scores(run.view, task.steps, lake)
-        rows.append(_scored(folder, task, row, h, lake))
+        curve = run_curve(run.view, task.steps, task.eval_every)
+        rows.append(_scored(folder, task, row, h, lake, curve))
     return rows
 
 
-def _scored(folder: Store, task: Task, row: dict[str, Any], h: np.ndarray, lake: Store) -> ScoredRow:
+def _scored(
+    folder: Store, task: Task, row: dict[str, Any], h: np.ndarray, lake: Store,
+    curve: list[tuple[int, np.ndarray]] = (),
+) -> ScoredRow:  # fmt: skip
     """The row with its evidence (h, written beside the result) and the scores derived from it and
     from the positions the task's setup gives, exactly as the leaderboard derives them again."""
     world, mode = row["world"], row["mode"]
@@ -301,7 +305,13 @@ def _scored(folder: Store, task: Task, row: dict[str, Any], h: np.ndarray, lake:
         )
     h = np.asarray(h, np.float64)
     name, digest = evidence.save(folder, world, mode, h)
-    return ScoredRow(world, mode, row["step"], row["wall_s"], row["run"], scores_of(h, p, world), name, digest)
+    points = []
+    for step, earlier in curve:  # the budget: every evaluation before the last, with its evidence
+        earlier = np.asarray(earlier, np.float64)
+        point_name, point_digest = evidence.save(folder, world, mode, earlier, step)
+        points.append(CurvePoint(step, scores_of(earlier, p, world), point_name, point_digest))
+    scores = scores_of(h, p, world)
+    return ScoredRow(world, mode, row["step"], row["wall_s"], row["run"], scores, name, digest, tuple(points))
 
 
 def _generate(task: Task, lake: Store, gen_workers: int, executor: str, notify: Callable[[str], None]) -> None:

@@ -25,3 +25,18 @@ def run_scores(run: RunView, steps: int, lake: Store) -> tuple[dict[str, Any], n
     made = Dataset.open(run.config.dataset_id, lake).manifest
     row = {"world": made.world_seed, "mode": made.mode, "step": last["step"], "wall_s": last["elapsed_s"]}
     return row | {"run": run.name}, h
+
+
+def evaluation_steps(steps: int, eval_every: int) -> list[int]:
+    """The evaluations a task's protocol makes before its last step: 0, eval_every, 2 eval_every, …"""
+    return list(range(0, steps, eval_every))
+
+
+def run_curve(run: RunView, steps: int, eval_every: int) -> list[tuple[int, np.ndarray]]:
+    """h of every evaluation a trained run made before the task's last step, in order: the scores
+    its budget is judged on. They must be exactly the protocol's evaluations."""
+    made = [row["step"] for row in run.metrics() if row["step"] < steps]
+    if made != evaluation_steps(steps, eval_every):
+        raise SmspaceError(f"{run.name} was evaluated at steps {made}, not the protocol's "
+                           f"{evaluation_steps(steps, eval_every)}")  # fmt: skip
+    return [(step, run.embeddings(step)[0]) for step in made]

@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from smspace.bench import evidence
 from smspace.bench.names import canonical_name, canonical_params, label_of, model_defaults
 from smspace.bench.representations import REPRESENTATIONS
@@ -21,6 +23,7 @@ from smspace.bench.result import BenchRecord, ScoredRow, ScoresRecord
 from smspace.bench.result import shown as _shown
 from smspace.bench.run import BENCH, FORMAT
 from smspace.bench.run import SCORES as SCORES_FILE
+from smspace.bench.scores import evaluation_steps
 from smspace.bench.suite import Task, datasets_hash, get_suite
 from smspace.common.differing import differing
 from smspace.common.errors import DatasetCorrupt, SmspaceError
@@ -165,6 +168,40 @@ def _defaults_here(name: str) -> dict[str, Any] | None:
         return None
 
 
+def _check_follows(again: dict[str, float], stored: dict[str, float], where: str) -> None:
+    rel, absolute = TOLERANCE
+    wrong = [s for s in SCORES if not math.isclose(again[s], stored[s], rel_tol=rel, abs_tol=absolute)]
+    if wrong:
+        said = ", ".join(f"{s} {stored[s]!r} (its evidence gives {again[s]!r})" for s in wrong)
+        raise SmspaceError(f"{where} does not follow from its evidence: {said}")
+
+
+def _check_curve(row: ScoredRow, i: int, task: Task, folder: Store, p: np.ndarray, where: str) -> None:
+    """A row's budget, where it has one: exactly the protocol's evaluations before the last (a
+    curve with a step left out or added would rank entries on different budgets), each score one
+    it can take and derived again from its own evidence."""
+    if not row.curve:
+        return
+    steps = [point.step for point in row.curve]
+    if steps != evaluation_steps(task.steps, task.eval_every):
+        raise SmspaceError(f"{where}: row {i} has scores at steps {steps}, not the protocol's evaluations "
+                           f"{evaluation_steps(task.steps, task.eval_every)}")  # fmt: skip
+    for point in row.curve:
+        at = f"{where}: row {i} at step {point.step}"
+        for score in SCORES.values():
+            if not score.can_take(point.scores[score.name], task.n_h):
+                said = _shown(point.scores[score.name])
+                raise SmspaceError(f"{at} has {score.name} {said}, not a number it can take")
+        if point.h != evidence.file_of(row.world, row.mode, point.step):
+            raise SmspaceError(f"{at} names no evidence of its own (h, h_sha256)")
+        h = evidence.load(folder, point.h, point.h_sha256, (len(p), task.n_h))
+        try:
+            again = scores_of(h, p, row.world)
+        except SmspaceError as e:
+            raise SmspaceError(f"{folder.url}/{evidence.EVIDENCE}/{point.h}: {e}; it is not scored") from None
+        _check_follows(again, point.scores, at)
+
+
 def _check_rows(rows: tuple[ScoredRow, ...], task: Task, learns: bool, folder: Store, where: str) -> None:
     expected = {(w, m) for w in task.world_seeds for m in task.modes}
     if len(rows) != len(expected):
@@ -176,6 +213,12 @@ def _check_rows(rows: tuple[ScoredRow, ...], task: Task, learns: bool, folder: S
             raise SmspaceError(f"{where}: row {i} is world {_shown(row.world)}, mode {_shown(row.mode)}: not one of "
                                f"task {task.name}'s worlds x modes, or one counted twice")  # fmt: skip
         seen.add((row.world, row.mode))
+    with_curve = sum(1 for row in rows if row.curve)
+    if with_curve and not learns:
+        raise SmspaceError(f"{where}: scores at earlier evaluations, for an entry that learns nothing (no budget)")
+    if with_curve not in (0, len(rows)):
+        raise SmspaceError(f"{where}: {with_curve} of {len(rows)} rows have scores at earlier evaluations; "
+                           "a result's rows share one budget")  # fmt: skip
     for i, row in enumerate(rows):
         if row.step != step:
             raise SmspaceError(f"{where}: row {i} was scored at step {row.step}, not the protocol's {step}")
@@ -192,9 +235,5 @@ def _check_rows(rows: tuple[ScoredRow, ...], task: Task, learns: bool, folder: S
             again = scores_of(h, p, row.world)
         except SmspaceError as e:
             raise SmspaceError(f"{folder.url}/{evidence.EVIDENCE}/{row.h}: {e}; it is not scored") from None
-        rel, absolute = TOLERANCE
-        stored = row.scores
-        wrong = [s for s in SCORES if not math.isclose(again[s], stored[s], rel_tol=rel, abs_tol=absolute)]
-        if wrong:
-            said = ", ".join(f"{s} {stored[s]!r} (its evidence gives {again[s]!r})" for s in wrong)
-            raise SmspaceError(f"{where}: row {i} does not follow from its evidence: {said}")
+        _check_follows(again, row.scores, f"{where}: row {i}")
+        _check_curve(row, i, task, folder, p, where)

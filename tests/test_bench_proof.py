@@ -786,3 +786,48 @@ def test_the_torus_probe_reads_the_published_results_and_agrees_with_their_probe
     shown = {(c["entry"], c["mode"]): c["mean"] for c in cells if c["score"] == "probe_r2"}
     assert all(abs(r["plane_mean"] - shown[(r["entry"], r["mode"])]) < 1e-12 for r in rows)
     assert all(-10 < r["torus_mean"] <= 1 for r in rows)
+
+
+def test_a_results_budget_is_verified_and_ranked_against_steps(bench, tmp_path):
+    """Every row carries its scores at the protocol's earlier evaluations (0 and 30 of tiny's 60),
+    each with its own evidence; the leaderboard ranks the learned entries at each step and says
+    whether the last step moved the ranking. A budget with a step left out, scores that do not
+    follow from their evidence, or a budget on some rows only is refused, naming the file."""
+    folder = bench / "out" / SHALLOW
+    rows = json.loads((folder / "scores.json").read_text())["rows"]
+    assert all([point["step"] for point in row["curve"]] == [0, 30] for row in rows)
+    assert all((folder / "evidence" / point["h"]).is_file() for row in rows for point in row["curve"])
+    isomap = json.loads((bench / "out/tiny-v1/isomap/grid/scores.json").read_text())["rows"]
+    assert not any("curve" in row for row in isomap)  # it learns nothing: no budget
+    made = board(bench / "out", out=tmp_path / "b")
+    assert made.returncode == 0, made.stderr
+    table = json.loads((tmp_path / "b/leaderboard.json").read_text())["budgets"]
+    assert {c["entry"] for c in table["curves"]} == {"shallow"} and table["rankings"] == []  # one entry: no ranking
+    assert (tmp_path / "b/budget.png").stat().st_size > 0
+    for change, said in [
+        (lambda s: [r["curve"].pop(0) for r in s["rows"]], "not the protocol's evaluations [0, 30]"),
+        (lambda s: s["rows"][0]["curve"][1].update(d_metric=s["rows"][0]["curve"][1]["d_metric"] * 1.01),
+         "row 0 at step 30 does not follow from its evidence"),
+        (lambda s: s["rows"][1].pop("curve"), "rows have scores at earlier evaluations"),
+    ]:  # fmt: skip
+        copy = tmp_path / "copy"
+        shutil.rmtree(copy, ignore_errors=True)
+        shutil.copytree(bench / "out", copy)
+        edit(copy / SHALLOW / "scores.json", change)
+        line = one_line(board(copy, out=tmp_path / "c"))
+        assert said in line and str(copy / SHALLOW) in line, line
+
+
+def test_a_ranking_is_settled_only_if_the_last_step_left_it_unchanged():
+    from smspace.bench.budget import markdown, rankings
+
+    def curve(entry: str, means: list[float], score: str = "d_metric") -> dict:
+        return {"task": "grid", "mode": "MM", "entry": entry, "score": score, "steps": [0, 10, 20], "means": means}
+
+    moving = rankings([curve("a", [3, 1, 2]), curve("b", [2, 2, 1])])
+    assert moving[0]["order"] == [["b", "a"], ["a", "b"], ["b", "a"]]
+    assert not moving[0]["settled"] and moving[0]["last_change"] == 20
+    still = rankings([curve("a", [0.1, 0.5, 0.9], "probe_r2"), curve("b", [0.2, 0.3, 0.4], "probe_r2")])
+    assert still[0]["settled"] and still[0]["order"][-1] == ["a", "b"] and still[0]["last_change"] == 10
+    assert "no (changed at step 20)" in "\n".join(markdown(moving))
+    assert rankings([curve("a", [1, 2, 3]), {**curve("b", [1, 2]), "steps": [0, 20]}]) == []  # other budgets
