@@ -395,11 +395,11 @@ def test_a_checkpoint_of_smspace_0_1_resumes_bit_identical(tmp_path, monkeypatch
     old = RunDir.create(tmp_path / "old", cfg, False)
     real_step, calls = SingleLearner.train_step, []
 
-    def stop_after_20(self, batches):
+    def stop_after_20(self, batches, step):
         calls.append(1)
         if len(calls) > 20:
             raise KeyboardInterrupt  # after the checkpoint of step 20
-        return real_step(self, batches)
+        return real_step(self, batches, step)
 
     with monkeypatch.context() as patched:
         patched.setattr(SingleLearner, "train_step", stop_after_20)
