@@ -131,10 +131,6 @@ class BetaVAENet(SensorimotorNet):
     def encode(self, m: torch.Tensor) -> torch.Tensor:
         return self.encoder(m)[..., : self.n_h]
 
-    def forward(self, m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor) -> torch.Tensor:
-        h = self.encode(torch.cat([m_t, m_t1]))
-        return self.predictor(torch.cat([h[: len(m_t)], h[len(m_t) :], s_t], dim=1))
-
     def objective(
         self, m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor, noise: torch.Tensor
     ) -> torch.Tensor:

@@ -78,7 +78,7 @@ class SensorimotorNet(nn.Module):
 
     def forward(self, m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor) -> torch.Tensor:
         # one encoder call on both halves: the same weights, half the per-call overhead
-        h = self.encoder(torch.cat([m_t, m_t1]))
+        h = self.encode(torch.cat([m_t, m_t1]))
         h_t, h_t1 = h[: len(m_t)], h[len(m_t) :]
         return self.predictor(torch.cat([h_t, h_t1, s_t], dim=1))
 
