@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from smspace.datagen.setups.base import Setup
+from smspace.datagen.walks import lattice_walk
 
 GRID_SIZE = 10
 LEVELS = np.linspace(0.0, 1.0, 5)  # u ∈ {0, .25, .5, .75, 1}
@@ -71,6 +72,14 @@ class GridWorld:
 
     def sample_motors(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         idx = rng.integers(0, len(self.motors), n)
+        return self.motors[idx], self.positions[idx]
+
+    def walk_motors(
+        self, rng: np.random.Generator, episodes: int, length: int, step: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Walks on the lattice of motor levels (datagen/walks.py): each motor moves by at most
+        `step` levels per step."""
+        idx = lattice_walk(rng, self.n_motor, len(LEVELS), episodes, length, step)
         return self.motors[idx], self.positions[idx]
 
     def sample_shifts(self, rng: np.random.Generator, n: int) -> np.ndarray:

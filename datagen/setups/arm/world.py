@@ -16,6 +16,7 @@ import numpy as np
 
 from smspace.datagen.setups.arm.room import ROOM_HALF, WALL_HEIGHT, Room, draw_room
 from smspace.datagen.setups.arm.vulkan import require_render_device
+from smspace.datagen.walks import continuous_walk
 
 BASE_HEIGHT = 1.6
 IMAGE_SIZE = 16
@@ -206,6 +207,14 @@ class ArmWorld:
     def sample_motors(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         m = rng.uniform(-1.0, 1.0, (n, self.n_motor))
         return m, self.positions(m)
+
+    def walk_motors(
+        self, rng: np.random.Generator, episodes: int, length: int, step: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Walks in the continuous motor space (datagen/walks.py), with the positions they reach."""
+        m = continuous_walk(rng, self.n_motor, episodes, length, step)
+        p = self.positions(m.reshape(-1, self.n_motor))
+        return m, p.reshape(episodes, length + 1, 2)
 
     def sample_shifts(self, rng: np.random.Generator, n: int) -> np.ndarray:
         return rng.uniform(-SHIFT_BOUND, SHIFT_BOUND, (n, 2))
