@@ -245,13 +245,14 @@ def view(dataset, lake, limit, output) -> None:
 @click.command()
 @click.argument("dataset", shell_complete=complete_datasets)
 @LAKE_OPTION
-@click.option("--format", "fmt", type=click.Choice(["foxglove", "parquet"]), required=True)
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="The file to write.")
+@click.option("--format", "fmt", type=click.Choice(["foxglove", "parquet", "hf"]), required=True)
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The file (hf: the folder) to write.")
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="Only the first N transitions.")
 @click.option("--overwrite", is_flag=True, help="Replace --out if it exists.")
 @friendly_errors
 def export(dataset, lake, fmt, out, limit, overwrite) -> None:
-    """Export a dataset: per-transition MCAP with Foxglove schemas, or Parquet."""
+    """Export a dataset: per-transition MCAP with Foxglove schemas, Parquet, or a Hugging Face
+    `datasets` folder with a dataset card."""
     from smspace.datagen.export import export as run
     from smspace.lake.dataset import Dataset
 

@@ -6,6 +6,7 @@
   1 ms per transition index, so the file is deterministic and rerun shows real times.
 - parquet: one row per transition for analysis tools; images as fixed_size_binary, the manifest
   in the schema metadata.
+- hf: a Hugging Face `datasets` folder with a dataset card (datagen/export_hf.py).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from smspace.lake.transitions import COLUMNS, Transitions
 
 EPOCH_NS = 1_575_763_200 * 10**9  # 2019-12-08T00:00:00Z, NeurIPS 2019
 STEP_NS = 10**6
-FORMATS = ("foxglove", "parquet")
+FORMATS = ("foxglove", "parquet", "hf")
 
 
 def _blocks(ds: Dataset, limit: int | None) -> Iterator[tuple[int, Transitions]]:
@@ -47,6 +48,10 @@ def export(ds: Dataset, fmt: str, out: Path, limit: int | None = None, overwrite
     """Write the export under a temporary name, renamed only when complete (never onto an input)."""
     if fmt not in FORMATS:
         raise SmspaceError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
+    if fmt == "hf":  # a folder, not a file
+        from smspace.datagen.export_hf import export_hf
+
+        return export_hf(ds, out, limit, overwrite)
     check_output(out, overwrite, [ds.local_folder])
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
