@@ -1,5 +1,5 @@
 """`smgen export --format hf`: a dataset as a Hugging Face `datasets` folder, written by the
-library itself (Dataset.from_generator, then save_to_disk), so `datasets.load_from_disk` opens it
+library itself (its ArrowWriter, one batch per lake block, then save_to_disk), so `datasets.load_from_disk` opens it
 with its own reader and typed features; a dataset card (README.md) says what each feature is, where
 the data came from (the manifest's setup, mode, seed, config hash) and under which license.
 
@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import shutil
 import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -52,17 +51,19 @@ def features_of(ds: Dataset):
     return Features({name: spec.get(name, sensor) for name in ("index", *COLUMNS)})
 
 
-def _rows(url: str, limit: int | None) -> Iterator[dict]:
-    """Row dicts in index order; the generator re-opens the dataset so `datasets` can fingerprint
-    it from its arguments alone."""
+def _write_arrow(ds: Dataset, path: Path, limit: int | None) -> None:
+    """The lake's blocks as batches through `datasets`' own ArrowWriter: memory bounded by a block,
+    each column cast to its declared feature by the library."""
+    from datasets.arrow_writer import ArrowWriter
+
     from smspace.datagen.export import _blocks
 
-    ds = Dataset(url)
     flat = ds.manifest.sensor_dtype != "uint8"
-    for first, tr in _blocks(ds, limit):
-        columns = _columns(tr, flat)
-        for i in range(len(tr)):
-            yield {"index": first + i} | {name: col[i] for name, col in columns.items()}
+    with ArrowWriter(features=features_of(ds), path=str(path)) as writer:
+        for first, tr in _blocks(ds, limit):
+            index = np.arange(first, first + len(tr), dtype=np.uint64)
+            writer.write_batch({"index": index} | _columns(tr, flat))
+        writer.finalize()
 
 
 def _columns(tr: Transitions, flat: bool) -> dict[str, np.ndarray]:
@@ -111,10 +112,8 @@ def export_hf(ds: Dataset, out: Path, limit: int | None = None, overwrite: bool 
     except OSError as e:
         raise SmspaceError(f"cannot write {out}: {e.strerror or e}") from e
     try:
-        hf = HFDataset.from_generator(
-            _rows, features=features_of(ds), cache_dir=str(work / "cache"),
-            gen_kwargs={"url": ds.url, "limit": limit},
-        )  # fmt: skip
+        _write_arrow(ds, work / "batches.arrow", limit)
+        hf = HFDataset.from_file(str(work / "batches.arrow"))
         folder = work / "dataset"
         hf.save_to_disk(str(folder))
         count = len(hf)
