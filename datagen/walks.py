@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from smspace.common.errors import SmspaceError
+from smspace.lake.exploration import MAX_LENGTH
 from smspace.lake.transitions import Transitions
 
-MAX_LENGTH = 1 << 20  # steps in one episode
 MAX_EPISODES = 1 << 24
 
 

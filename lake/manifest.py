@@ -15,6 +15,7 @@ from typing import Any
 
 from smspace import schemas
 from smspace.common.errors import DatasetCorrupt, SmspaceError
+from smspace.lake.exploration import Exploration
 from smspace.lake.integrity import read_verified
 from smspace.lake.store import Store, exists, open_store
 from smspace.lake.transitions import MODES
@@ -54,10 +55,17 @@ class GenConfig:
     # a plugin setup's code: {entry_point, distribution, version, code_sha256} (None: smspace's own
     # setup, and then absent from the record, so that those hashes are what they always were)
     plugin: dict[str, str] | None = None
+    # how the agent explored (lake/exploration.py): None for independent transitions, and then
+    # absent from the record, as `plugin` is
+    exploration: dict[str, Any] | None = None
+
+    @property
+    def walks(self) -> Exploration:
+        return Exploration.from_record(self.exploration)
 
     @property
     def dataset_id(self) -> str:
-        return dataset_id(self.setup, self.world_seed, self.mode)
+        return dataset_id(self.setup, self.world_seed, self.mode) + self.walks.suffix
 
     @property
     def n_shards(self) -> int:
@@ -69,8 +77,9 @@ class GenConfig:
 
     def to_dict(self) -> dict[str, Any]:
         record = asdict(self)
-        if record["plugin"] is None:
-            del record["plugin"]
+        for optional in ("plugin", "exploration"):
+            if record[optional] is None:
+                del record[optional]
         return record
 
     def problem(self) -> str | None:
@@ -85,6 +94,10 @@ class GenConfig:
             isinstance(plugin, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in plugin.items())
         ):
             return "config plugin is not a record of strings"
+        try:
+            walks = self.walks
+        except ValueError as e:
+            return f"config {e}"
         bounds = (
             ("transitions", 1, MAX_TRANSITIONS),
             ("shard_size", 1, MAX_SHARD_SIZE),
@@ -95,7 +108,7 @@ class GenConfig:
                 return f"config {name} {getattr(self, name)} is outside {low}..{high}"
         if self.n_shards > MAX_SHARDS:
             return f"config makes {self.n_shards} shards, more than {MAX_SHARDS}"
-        return None
+        return walks.problem(self.transitions, self.shard_size)
 
     @classmethod
     def from_record(cls, raw: Any, where: str) -> GenConfig:
