@@ -187,7 +187,7 @@ def build_manifest(cfg: GenConfig, records: dict[int, PartRecord]) -> Manifest:
         n_motor=first.n_motor,
         sensor_shape=list(first.sensor_shape),
         sensor_dtype=first.sensor_dtype,
-        schema_version=schemas.SCHEMA_VERSION,
+        schema_version=schemas.WALKS_VERSION if cfg.explored.walks else schemas.TRANSITIONS_VERSION,
         config=cfg.to_dict(),
         config_hash=cfg.config_hash,
         shards=[

@@ -60,12 +60,12 @@ class GenConfig:
     exploration: dict[str, Any] | None = None
 
     @property
-    def walks(self) -> Exploration:
+    def explored(self) -> Exploration:
         return Exploration.from_record(self.exploration)
 
     @property
     def dataset_id(self) -> str:
-        return dataset_id(self.setup, self.world_seed, self.mode) + self.walks.suffix
+        return dataset_id(self.setup, self.world_seed, self.mode) + self.explored.suffix
 
     @property
     def n_shards(self) -> int:
@@ -95,7 +95,7 @@ class GenConfig:
         ):
             return "config plugin is not a record of strings"
         try:
-            walks = self.walks
+            walks = self.explored
         except ValueError as e:
             return f"config {e}"
         bounds = (
@@ -226,13 +226,17 @@ def load_manifest(folder: Path | Store, data: bytes | None = None) -> Manifest:
     if not isinstance(raw, dict):
         raise DatasetCorrupt(f"corrupt manifest {path}: not a JSON object")
     version = raw.get("schema_version")
-    if version != schemas.SCHEMA_VERSION:
-        raise SmspaceError(
-            f"dataset {folder} has schema version {version}; this smspace reads version {schemas.SCHEMA_VERSION}"
-        )
+    if isinstance(version, bool) or version not in schemas.READABLE:
+        readable = ", ".join(map(str, schemas.READABLE))
+        raise SmspaceError(f"dataset {folder} has schema version {version}; this smspace reads versions {readable}")
     problem = check_manifest(raw)
     if problem:
         raise DatasetCorrupt(f"corrupt manifest {path}: {problem}")
+    config = raw.get("config")
+    walks = isinstance(config, dict) and config.get("exploration") is not None
+    if version != (schemas.WALKS_VERSION if walks else schemas.TRANSITIONS_VERSION):
+        kind = "walks" if walks else "independent transitions"
+        raise DatasetCorrupt(f"corrupt manifest {path}: schema version {version} for a dataset of {kind}")
     known = {f for f in Manifest.__dataclass_fields__}
     return Manifest(**{k: v for k, v in raw.items() if k in known})  # fields of later versions are ignored
 

@@ -40,6 +40,13 @@ class Block:
 
     first_index: int
     transitions: Transitions
+    # walks (schema version 2): each transition's episode and step index; None: transitions
+    episode: np.ndarray | None = None
+    step: np.ndarray | None = None
+
+    @property
+    def version(self) -> int:
+        return schemas.TRANSITIONS_VERSION if self.episode is None else schemas.WALKS_VERSION
 
 
 def _sensor_column(column: schemas.transitions_pb2.SensorColumn, s: np.ndarray) -> None:
@@ -49,9 +56,12 @@ def _sensor_column(column: schemas.transitions_pb2.SensorColumn, s: np.ndarray) 
         column.float32.values.extend(s.reshape(-1).astype(np.float32))
 
 
-def encode_batch(first_index: int, tr: Transitions) -> bytes:
-    msg = schemas.TransitionBatch(
-        schema_version=schemas.SCHEMA_VERSION,
+def encode_batch(first_index: int, tr: Transitions, episode: np.ndarray | None = None,
+                 step: np.ndarray | None = None) -> bytes:  # fmt: skip
+    """Version 1 for transitions (the bytes they always had), version 2 with episodes for walks."""
+    version = schemas.TRANSITIONS_VERSION if episode is None else schemas.WALKS_VERSION
+    msg = schemas.VERSIONS[version].TransitionBatch(
+        schema_version=version,
         first_index=first_index,
         count=len(tr),
         motor_dim=tr.m_t.shape[1],
@@ -66,6 +76,11 @@ def encode_batch(first_index: int, tr: Transitions) -> bytes:
     priv.p_t1.extend(tr.p_t1.reshape(-1))
     priv.shift_t.extend(tr.shift_t.reshape(-1))
     priv.shift_t1.extend(tr.shift_t1.reshape(-1))
+    if episode is not None:
+        if step is None or len(episode) != len(tr) or len(step) != len(tr):
+            raise ValueError(f"{len(tr)} transitions need as many episode and step indices")
+        msg.episodes.episode.extend(np.asarray(episode, np.uint64))
+        msg.episodes.step.extend(np.asarray(step, np.uint32))
     return msg.SerializeToString()
 
 
@@ -79,8 +94,9 @@ def _sensor_array(column: schemas.transitions_pb2.SensorColumn, shape: tuple[int
 
 
 def decode_batch(data: bytes) -> Block:
-    msg = schemas.TransitionBatch.FromString(data)
-    if msg.schema_version != schemas.SCHEMA_VERSION:
+    """Either version: version 2's message reads version 1's bytes (it only adds `episodes`)."""
+    msg = schemas.VERSIONS[schemas.WALKS_VERSION].TransitionBatch.FromString(data)
+    if msg.schema_version not in schemas.READABLE:
         raise ValueError(f"batch of schema version {msg.schema_version}")
     n, nm = msg.count, msg.motor_dim
     shape = (n, *msg.sensor_shape)
@@ -99,7 +115,15 @@ def decode_batch(data: bytes) -> Block:
         shift_t=f32(priv.shift_t, 2),
         shift_t1=f32(priv.shift_t1, 2),
     )
-    return Block(msg.first_index, tr)
+    if msg.schema_version == schemas.TRANSITIONS_VERSION:
+        if msg.HasField("episodes"):
+            raise ValueError("a batch of schema version 1 carries episodes")
+        return Block(msg.first_index, tr)
+    episode = np.array(msg.episodes.episode, np.int64)
+    step = np.array(msg.episodes.step, np.int64)
+    if len(episode) != n or len(step) != n:
+        raise ValueError(f"batch of {n} transitions has {len(episode)} episode and {len(step)} step indices")
+    return Block(msg.first_index, tr, episode, step)
 
 
 def _start_writer(fh, schema_name: str, message_class, topic: str) -> tuple[Writer, int]:
@@ -114,12 +138,18 @@ def _start_writer(fh, schema_name: str, message_class, topic: str) -> tuple[Writ
 
 def shard_bytes(blocks: Sequence[Block], metadata: dict[str, str]) -> bytes:
     """A whole shard in memory: it is stored in one step (a rename locally, one PUT on S3)."""
+    versions = {block.version for block in blocks} or {schemas.TRANSITIONS_VERSION}
+    if len(versions) > 1:
+        raise ValueError("a shard holds walks or transitions, not both")
+    (version,) = versions
     fh = io.BytesIO()
-    writer, channel = _start_writer(fh, schemas.TRANSITION_BATCH, schemas.TransitionBatch, TRANSITIONS_TOPIC)
+    message_class = schemas.VERSIONS[version].TransitionBatch
+    writer, channel = _start_writer(fh, schemas.transition_batch_name(version), message_class, TRANSITIONS_TOPIC)
     writer.add_metadata(SHARD_METADATA, metadata)
     for seq, block in enumerate(blocks):
         t = block.first_index  # log_time = transition index, so time ranges select transitions
-        writer.add_message(channel, log_time=t, publish_time=t, data=encode_batch(t, block.transitions), sequence=seq)
+        data = encode_batch(t, block.transitions, block.episode, block.step)
+        writer.add_message(channel, log_time=t, publish_time=t, data=data, sequence=seq)
     writer.finish()
     return fh.getvalue()
 
@@ -168,11 +198,13 @@ class ShardReader:
             raise DatasetCorrupt(f"corrupt shard {self.path}: no summary (truncated?)")
         self.summary = summary
         names = {s.name for s in summary.schemas.values()}
-        if names != {schemas.TRANSITION_BATCH} and names != {schemas.REGULAR_SAMPLING}:
+        readable = [{schemas.transition_batch_name(v)} for v in schemas.READABLE] + [{schemas.REGULAR_SAMPLING}]
+        if names not in readable:
             self._fh.close()
+            versions = ", ".join(f"{v} ({schemas.package(v)})" for v in schemas.READABLE)
             raise SmspaceError(
                 f"shard {self.path} has schema {', '.join(sorted(names))}; "
-                f"this smspace reads schema version {schemas.SCHEMA_VERSION} ({schemas.PACKAGE})"
+                f"this smspace reads schema versions {versions}"
             )
 
     @classmethod

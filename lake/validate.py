@@ -134,7 +134,7 @@ def validate_dataset(folder: Store | Path) -> list[str]:
     if issue:
         problems.append(f"{folder.name}: {issue}")
     problems += _regular_problems(folder, manifest)
-    if manifest.schema_version != schemas.SCHEMA_VERSION:
+    if manifest.schema_version not in schemas.READABLE:
         problems.append(f"{folder.name}: schema version {manifest.schema_version}")
     return _dedupe(problems)
 

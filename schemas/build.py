@@ -1,4 +1,5 @@
-"""Regenerate transitions_pb2.py from transitions.proto (needs grpcio-tools, a dev dependency).
+"""Regenerate transitions_pb2.py and transitions_v2_pb2.py from their .proto files (needs
+grpcio-tools, a dev dependency).
 
 The .proto is the source of truth; the generated module is committed so that users need no
 protobuf compiler, and tests/test_schemas.py fails when the two drift apart.
@@ -10,6 +11,7 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+PROTOS = ("transitions.proto", "transitions_v2.proto")
 
 
 def generate(out_dir: Path) -> None:
@@ -20,7 +22,7 @@ def generate(out_dir: Path) -> None:
         f"-I{HERE}",
         f"--python_out={out_dir}",
         f"--pyi_out={out_dir}",
-        str(HERE / "transitions.proto"),
+        *(str(HERE / name) for name in PROTOS),
     ]
     if protoc.main(args) != 0:
         raise SystemExit("protoc failed")
