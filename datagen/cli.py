@@ -29,6 +29,7 @@ from smspace.datagen.options import (
     transitions_option,
     worlds_option,
 )
+from smspace.lake.exploration import MAX_LENGTH, MAX_STEP, Exploration
 from smspace.lake.manifest import dataset_id
 
 
@@ -42,6 +43,22 @@ from smspace.lake.manifest import dataset_id
 @generator_workers_option("--workers", "workers")
 @click.option("--shard-size", type=int, default=None, help="Transitions per shard [grid 32768, arm 8192].")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
+@click.option(
+    "--exploration",
+    type=click.Choice(["transitions", "walk"]),
+    default="transitions",
+    show_default=True,
+    help="Independent transitions (the paper's), or episodes of a bounded random walk in motor space.",
+)
+@click.option(
+    "--walk-length", type=click.IntRange(1, MAX_LENGTH), default=50, show_default=True, help="Steps per episode."
+)
+@click.option(
+    "--walk-step",
+    type=click.FloatRange(0, MAX_STEP, min_open=True),
+    default=None,
+    help="Per step: lattice levels (grid) or a standard deviation of the motor range (arm) [the setup's].",
+)
 @executor_option("the parts are drawn")
 @click.option("--gpus-per-task", type=click.FloatRange(0, 64), default=0.0, help="Ray: GPUs per part (SAPIEN on CUDA).")
 @click.option(
@@ -64,6 +81,9 @@ def generate(
     workers,
     shard_size,
     overwrite,
+    exploration,
+    walk_length,
+    walk_step,
     executor,
     gpus_per_task,
     rank,
@@ -79,8 +99,13 @@ def generate(
     setup = get_setup(setup_name)
     check_seed_range(seed, worlds)
     modes = parse_modes(mode)
-    n = setup.default_transitions if transitions is None else transitions
-    shard_size = setup.default_shard_size if shard_size is None else shard_size
+    walk = Exploration()
+    unit = 1
+    if exploration == "walk":
+        walk = Exploration("walk", walk_length, setup.default_walk_step if walk_step is None else walk_step)
+        unit = walk_length  # walks fill the defaults whole: they are rounded down to whole episodes
+    n = setup.default_transitions // unit * unit if transitions is None else transitions
+    shard_size = max(unit, setup.default_shard_size // unit * unit) if shard_size is None else shard_size
     store = lake_store(lake)
     share = Share(rank, world_size)
     options = ExecutorOptions(workers=workers or default_workers(), gpus_per_task=gpus_per_task)
@@ -98,9 +123,10 @@ def generate(
             share=share,
             options=options,
             notify=lambda line: click.echo(line, err=True),
+            exploration=walk,
         )
     if not share.whole:
-        ids = " ".join(dataset_id(setup.name, s, m) for s in seeds for m in modes)
+        ids = " ".join(dataset_id(setup.name, s, m) + walk.suffix for s in seeds for m in modes)
         click.echo(
             f"rank {rank} of {world_size}: parts written; once every rank is done: smgen finalize {ids}", err=True
         )

@@ -27,6 +27,7 @@ from smspace.datagen.parts import REGULAR, PartRecord, part_file, parts_of, veri
 from smspace.datagen.setups import get_setup, setup_plugin
 from smspace.lake.bounds import SHARD_SIZE, TRANSITIONS
 from smspace.lake.catalog import check_lake, make_lake, rebuild_catalog
+from smspace.lake.exploration import Exploration
 from smspace.lake.integrity import file_problem
 from smspace.lake.manifest import (
     GENERATION,
@@ -239,6 +240,20 @@ def _check_request(transitions: int, shard_size: int) -> None:
     SHARD_SIZE.coerce(shard_size, "--shard-size")
 
 
+def probe_walk(setup: str, world_seed: int, walk: Exploration) -> None:
+    """Refuse walks before anything is written if the setup's world cannot draw a short one that
+    keeps the setup contract (a plugin's `walk_motors` answers to it as its other methods do)."""
+    from smspace.datagen.parts import world_for
+    from smspace.datagen.setups.contract import check_block, declared
+    from smspace.datagen.walks import draw_walks
+
+    spec, world = get_setup(setup), world_for(setup, world_seed)
+    where = f"walks of world {world_seed} of {setup}"
+    with plugins.guarded(setup_plugin(setup), f"drawing {where}"):
+        walks = draw_walks(world, "MM", np.random.default_rng(0), 1, min(walk.length, 4), walk.step)
+    check_block(walks.transitions, declared(spec, world, where), where)
+
+
 def check_disk(
     lake: Store | str, setup: str, modes: Iterable[str], world_seeds: Iterable[int], transitions: int
 ) -> None:
@@ -297,11 +312,17 @@ def generate(
     share: Share = Share(),
     options: ExecutorOptions | None = None,
     notify: Callable[[str], None] = lambda line: None,
+    exploration: Exploration | None = None,
 ) -> list[tuple[Manifest | None, bool]]:
     """Generate (or complete, or repair) every (world, mode) dataset; returns (manifest, newly
     committed) per dataset, the manifest None where a rank of an array left the commit to `finalize`.
-    `notify`: where a repair is said."""
+    `notify`: where a repair is said; `exploration`: independent transitions or walks."""
     _check_request(transitions, shard_size)
+    exploration = exploration or Exploration()
+    if problem := exploration.problem(transitions, shard_size):
+        raise SmspaceError(problem)
+    if exploration.walks and world_seeds:
+        probe_walk(setup, next(iter(world_seeds)), exploration)
     if overwrite and not share.whole:
         raise SmspaceError("--overwrite cannot be combined with --world-size: ranks would delete each other's parts")
     spec, plugin = get_setup(setup), setup_plugin(setup)
@@ -315,7 +336,12 @@ def generate(
         run_parts = held.enter_context(open_part_writers(executor, setup, options, probe))
         lake = check_lake(lake)
         sizes = transitions, shard_size
-        configs = [GenConfig(setup, mode, seed, *sizes, plugin=record) for seed in world_seeds for mode in modes]
+        walked = exploration.record()
+        configs = [
+            GenConfig(setup, mode, seed, *sizes, plugin=record, exploration=walked)
+            for seed in world_seeds
+            for mode in modes
+        ]
         _check_disk(lake, configs, spec.bytes_per_transition, share)
         make_lake(lake)
         if share.whole:  # one generator per dataset: a second command waits, then finds it done

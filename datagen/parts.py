@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -20,6 +21,7 @@ from smspace.common import plugins
 from smspace.common.errors import SmspaceError
 from smspace.datagen.setups import MODES, World, draw_transitions, get_setup, setup_label, setup_plugin
 from smspace.datagen.setups.contract import check_block, check_regular, check_world, declared
+from smspace.datagen.walks import draw_walks
 from smspace.lake.manifest import REGULAR_FILE, GenConfig, shard_name, software_versions
 from smspace.lake.shards import Block, ShardReader, regular_sampling_bytes, shard_bytes
 from smspace.lake.store import StorageUnreachable, Store
@@ -103,6 +105,37 @@ def _shard_record(part: int, data: bytes, blocks: list[Block], stats: dict[str, 
     )
 
 
+@dataclass(frozen=True)
+class _PendingBlock:
+    """One block still to draw: what it holds, for an error's words, and how to draw it."""
+
+    what: str
+    draw: Callable[[], Block]
+
+
+def _transition_blocks(
+    cfg: GenConfig, world: World, rng: np.random.Generator, lo: int, hi: int
+) -> Iterator[_PendingBlock]:
+    for start in range(lo, hi, cfg.batch_size):
+        n = min(cfg.batch_size, hi - start)
+        yield _PendingBlock("transitions", lambda s=start, n=n: Block(s, draw_transitions(world, cfg.mode, rng, n)))
+
+
+def _walk_blocks(cfg: GenConfig, world: World, rng: np.random.Generator, lo: int, hi: int) -> Iterator[_PendingBlock]:
+    """Whole episodes per block (about batch_size transitions): an episode's index is its first
+    transition's index over the length, so a shard's episodes follow from its range alone."""
+    walk = cfg.explored
+    per_block = walk.block_transitions(cfg.batch_size) // walk.length
+    for first in range(lo // walk.length, hi // walk.length, per_block):
+        n = min(per_block, hi // walk.length - first)
+
+        def draw(first: int = first, n: int = n) -> Block:
+            w = draw_walks(world, cfg.mode, rng, n, walk.length, walk.step)
+            return Block(first * walk.length, w.transitions, w.episode + first, w.step)
+
+        yield _PendingBlock("walks", draw)
+
+
 def write_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord:
     """Draw and store one part (a shard, or the regular sampling when part == REGULAR)."""
     world = world_for(cfg.setup, cfg.world_seed)
@@ -118,12 +151,14 @@ def write_part(cfg: GenConfig, folder: Store, part: int) -> PartRecord:
         return PartRecord.of(part, data, len(m), m.shape[1], software=made_with(cfg.setup))
     rng = shard_rng(cfg, part)
     lo, hi = cfg.shard_range(part)
+    draw = _walk_blocks if cfg.explored.walks else _transition_blocks
     blocks = []
-    for start in range(lo, hi, cfg.batch_size):
-        with plugins.guarded(plugin, f"drawing transitions of world {cfg.world_seed} ({cfg.mode})"):
-            tr = draw_transitions(world, cfg.mode, rng, min(cfg.batch_size, hi - start))
-        check_block(tr, declares, f"{where}, transitions {start}..{start + len(tr) - 1}")
-        blocks.append(Block(start, tr))
+    for block in draw(cfg, world, rng, lo, hi):
+        with plugins.guarded(plugin, f"drawing {block.what} of world {cfg.world_seed} ({cfg.mode})"):
+            made = block.draw()
+        last = made.first_index + len(made.transitions) - 1
+        check_block(made.transitions, declares, f"{where}, transitions {made.first_index}..{last}")
+        blocks.append(made)
     stats = _stats(blocks)
     metadata = {
         "dataset_id": cfg.dataset_id,

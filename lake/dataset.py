@@ -118,6 +118,22 @@ class Dataset:
             raise SmspaceError(f"dataset {self.url} has no transitions")
         return Transitions.concat(parts)[:limit]
 
+    def episodes(self, limit: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+        """(episode, step) of the first `limit` transitions of a walk dataset; None for independent
+        transitions, which have neither."""
+        episode, step, have = [], [], 0
+        for block in self.blocks():
+            if block.episode is None or block.step is None:
+                return None
+            episode.append(block.episode)
+            step.append(block.step)
+            have += len(block.episode)
+            if limit is not None and have >= limit:
+                break
+        if not episode:
+            return None
+        return np.concatenate(episode)[:limit], np.concatenate(step)[:limit]
+
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
         with ShardReader(self.store, self._recorded(self.manifest.regular_sampling)) as reader:
             return reader.regular_sampling()

@@ -31,6 +31,11 @@ class Exploration:
     def suffix(self) -> str:
         return WALK_SUFFIX if self.walks else ""
 
+    def block_transitions(self, batch_size: int) -> int:
+        """Transitions per stored batch: `batch_size`, or for walks the whole episodes that fit in
+        it (at least one). The writer and the loader both read it from here."""
+        return max(1, batch_size // self.length) * self.length if self.walks else batch_size
+
     def record(self) -> dict[str, Any] | None:
         """What a config records: nothing for transitions (their hashes stay what they were)."""
         return {"kind": self.kind, "length": self.length, "step": self.step} if self.walks else None
@@ -58,3 +63,8 @@ class Exploration:
         if not (isinstance(raw, dict) and set(raw) == {"kind", "length", "step"} and raw["kind"] == "walk"):
             raise ValueError(f"exploration record {raw!r} is not {{kind: walk, length, step}}")
         return cls("walk", raw["length"], raw["step"])
+
+
+def stored_batch(config: dict[str, Any]) -> int:
+    """Transitions per stored batch of a dataset, from its manifest's config."""
+    return Exploration.from_record(config.get("exploration")).block_transitions(config["batch_size"])

@@ -184,6 +184,12 @@ class Manifest:
         other gets FileExistsError (docs/FORMAT.md, "Commit protocol")."""
         folder.create(MANIFEST, self.to_json().encode())
 
+    @property
+    def exploration_words(self) -> str:
+        """How the agent explored, as `smgen info` says it: "transitions" or the walk's terms."""
+        walk = Exploration.from_record(self.config.get("exploration"))
+        return f"walk: episodes of {walk.length} steps of {walk.step:g}" if walk.walks else "transitions"
+
     def summary(self) -> dict[str, Any]:
         """The short form shown by `smgen info --json`."""
         return {
@@ -195,6 +201,7 @@ class Manifest:
             "shards": len(self.shards),
             "bytes": self.total_bytes,
             "schema_version": self.schema_version,
+            "exploration": self.exploration_words,
             "n_motor": self.n_motor,
             "sensor_shape": self.sensor_shape,
             "sensor_dtype": self.sensor_dtype,

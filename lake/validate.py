@@ -8,10 +8,13 @@ import numpy as np
 
 from smspace import schemas
 from smspace.common.errors import SmspaceError
+from smspace.lake.episodes import episode_problem
+from smspace.lake.exploration import Exploration
 from smspace.lake.integrity import content_problem, read_verified
 from smspace.lake.manifest import load_manifest
-from smspace.lake.shards import ShardReader
+from smspace.lake.shards import Block, ShardReader
 from smspace.lake.store import StorageUnreachable, Store, etag, open_store
+from smspace.lake.transitions import Transitions
 
 
 class _ModeCheck:
@@ -50,6 +53,29 @@ class _ModeCheck:
                 f"{self.equal}/{self.n} transitions with shift_t == shift_t1)"
             )
         return None
+
+
+class _EpisodeCheck:
+    """The walk invariants (lake/episodes.py) of one shard, block by block: each block is checked
+    with the last transition of the block before it, so an episode broken at a seam is found."""
+
+    def __init__(self, mode: str, length: int):
+        self.mode, self.length = mode, length
+        self.last: Block | None = None
+
+    def add(self, block: Block) -> str | None:
+        if block.episode is None or block.step is None:
+            return f"batch at {block.first_index} has no episode indices (a walk's schema version 2 carries them)"
+        if len(block.step) and int(block.step.max()) >= self.length:
+            return f"batch at {block.first_index} has step {int(block.step.max())} in episodes of {self.length} steps"
+        head, carried = block, self.last is not None
+        if carried:
+            t = Transitions(*(np.concatenate([getattr(self.last.transitions, f)[-1:], getattr(block.transitions, f)])
+                              for f in Transitions.__dataclass_fields__))  # fmt: skip
+            head = Block(block.first_index - 1, t, np.concatenate([self.last.episode[-1:], block.episode]),
+                         np.concatenate([self.last.step[-1:], block.step]))  # fmt: skip
+        self.last = block
+        return episode_problem(head.transitions, head.episode, head.step, self.mode, head.first_index, carried)
 
 
 def _batch_problems(tr, bound: float | None, mode: str) -> list[str]:
@@ -98,7 +124,9 @@ def validate_dataset(folder: Store | Path) -> list[str]:
     problems: list[str] = []
     mode_check = _ModeCheck(manifest.mode)
     expected_index = 0
+    walk = Exploration.from_record(manifest.config.get("exploration"))
     for shard in manifest.shards:
+        episodes = _EpisodeCheck(manifest.mode, walk.length) if walk.walks else None
         where = f"{folder.name}/{shard['file']}"
         data, found = _fetch(folder, shard)
         problems += [f"{where}: {problem}" for problem in found]
@@ -119,6 +147,11 @@ def validate_dataset(folder: Store | Path) -> list[str]:
                     problems += [f"{where}: {p}" for p in _batch_problems(tr, manifest.shift_bound, manifest.mode)]
                     issue = mode_check.add(tr.shift_t, tr.shift_t1)
                     if issue:
+                        problems.append(f"{where}: {issue}")
+                    if block.version != manifest.schema_version:
+                        version = f"schema version {block.version} in a dataset of {manifest.schema_version}"
+                        problems.append(f"{where}: a batch of {version}")
+                    elif episodes is not None and (issue := episodes.add(block)):
                         problems.append(f"{where}: {issue}")
         except StorageUnreachable:
             raise

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -125,6 +127,39 @@ def forged(original: bytes, folder: Path) -> bytes:
     data = shard_bytes(blocks, metadata | {"pad": "x" * short})  # metadata is stored uncompressed
     assert len(data) == len(original)
     return data
+
+
+# rerun recordings, read back with rerun's own CLI (tests/test_view.py, tests/test_walk_lake.py)
+RERUN_ENV = {"CI": "true", "PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/root")}
+
+
+def rerun(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(BIN / "rerun"), *map(str, args)], capture_output=True, text=True, timeout=120, env=RERUN_ENV
+    )
+
+
+DATA_COLUMNS = (
+    "Image:buffer",
+    "Scalars:scalars",
+    "Points2D:positions",
+    "Points3D:positions",
+    "LineStrips2D:strips",
+    "LineStrips3D:strips",
+    "TextDocument:text",
+    "InstancePoses3D:translations",
+)
+
+
+def rrd_rows(path) -> Counter:
+    """Rows per entity holding data (not the static format or series-name rows), from `rerun rrd print`."""
+    assert rerun("rrd", "verify", path).returncode == 0
+    out = rerun("rrd", "print", path).stdout
+    rows: Counter = Counter()
+    for n, entity, columns in re.findall(r"with (\d+) rows .*? - (/\S+) - data columns: \[([^\]]*)\]", out):
+        if any(c in columns.split() for c in DATA_COLUMNS):
+            rows[entity] += int(n)
+    return rows
 
 
 def board_scalars(run: Path) -> dict[str, list[tuple[int, float]]]:

@@ -115,26 +115,26 @@ def write_foreign_shard(path: Path, schema_name: str) -> None:
 
 def test_shard_of_another_schema_version(lake_copy):
     shard = lake_copy / "grid-seed3-MM" / "shard-00000.mcap"
-    write_foreign_shard(shard, "smspace.v2.TransitionBatch")
+    write_foreign_shard(shard, "smspace.v3.TransitionBatch")
     result = smgen("validate", "--lake", lake_copy, "grid-seed3-MM")
     assert result.exit_code == 1
-    assert "grid-seed3-MM/shard-00000.mcap" in result.output and "smspace.v2.TransitionBatch" in result.output
+    assert "grid-seed3-MM/shard-00000.mcap" in result.output and "smspace.v3.TransitionBatch" in result.output
     with pytest.raises(SmspaceError, match=r"shard-00000.mcap is not the file dataset grid-seed3-MM records"):
         Dataset.open("grid-seed3-MM", lake_copy).read_all()  # readers refuse bytes the manifest does not record
     from smspace.lake.shards import ShardReader
     from smspace.lake.store import open_store
 
-    with pytest.raises(SmspaceError, match=r"shard-00000.mcap has schema smspace.v2"):
+    with pytest.raises(SmspaceError, match=r"shard-00000.mcap has schema smspace.v3"):
         ShardReader(open_store(shard.parent), shard.name)  # and a shard opened on its own says what it is
 
 
 def test_manifest_of_another_schema_version(lake_copy):
     path = lake_copy / "grid-seed3-MM" / "manifest.json"
     raw = json.loads(path.read_text())
-    raw["schema_version"] = 2
+    raw["schema_version"] = 3
     path.write_text(json.dumps(raw))
     line = one_error_line(smgen("info", "--lake", lake_copy, "grid-seed3-MM"))
-    assert "schema version 2" in line
+    assert "schema version 3" in line
 
 
 def test_full_disk_leaves_no_partial_shard(tmp_path, monkeypatch):

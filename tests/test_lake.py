@@ -80,6 +80,7 @@ def test_catalog_ls_and_info(grid_lake):
         "transitions": 6000,
         "shards": 3,
         "schema_version": 1,
+        "exploration": "transitions",
         "n_motor": 3,
         "sensor_shape": [4],
         "regular_sampling_size": 125,

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import os
-import re
 import signal
 import subprocess
 import time
 import urllib.request
-from collections import Counter
 
 import numpy as np
 import psutil
@@ -17,38 +15,8 @@ import pytest
 from smspace.datagen.export import read_parquet_transitions
 from smspace.lake.dataset import Dataset
 
-from .conftest import BIN, SAMPLES, run_cmd, smgen
+from .conftest import BIN, RERUN_ENV, SAMPLES, rerun, rrd_rows, run_cmd, smgen
 from .servers import free_port
-
-RERUN_ENV = {"CI": "true", "PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/root")}
-
-
-def rerun(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [str(BIN / "rerun"), *map(str, args)], capture_output=True, text=True, timeout=120, env=RERUN_ENV
-    )
-
-
-DATA_COLUMNS = (
-    "Image:buffer",
-    "Scalars:scalars",
-    "Points2D:positions",
-    "Points3D:positions",
-    "LineStrips2D:strips",
-    "TextDocument:text",
-    "InstancePoses3D:translations",
-)
-
-
-def rrd_rows(path) -> Counter:
-    """Rows per entity holding data (not the static format or series-name rows), from `rerun rrd print`."""
-    assert rerun("rrd", "verify", path).returncode == 0
-    out = rerun("rrd", "print", path).stdout
-    rows: Counter = Counter()
-    for n, entity, columns in re.findall(r"with (\d+) rows .*? - (/\S+) - data columns: \[([^\]]*)\]", out):
-        if any(c in columns.split() for c in DATA_COLUMNS):
-            rows[entity] += int(n)
-    return rows
 
 
 def rrd_components(path) -> str:

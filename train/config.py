@@ -298,5 +298,7 @@ def check_resources(cfg: TrainConfig, manifest, runs: int = 1) -> None:
 
 def unit_count(manifest) -> int:
     """The loader's units of work (one batch message each) in a dataset."""
-    batch = manifest.config["batch_size"]
+    from smspace.lake.exploration import stored_batch
+
+    batch = stored_batch(manifest.config)
     return sum(-(-shard["transitions"] // batch) for shard in manifest.shards)

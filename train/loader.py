@@ -29,6 +29,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from smspace.lake.dataset import Dataset
+from smspace.lake.exploration import stored_batch
 from smspace.lake.manifest import Manifest
 from smspace.lake.normalise import normalisers
 from smspace.lake.shards import ShardReader
@@ -44,7 +45,7 @@ class Unit:
 
 
 def dataset_units(manifest: Manifest) -> list[Unit]:
-    batch = manifest.config["batch_size"]
+    batch = stored_batch(manifest.config)
     units = []
     for i, shard in enumerate(manifest.shards):
         lo, hi = shard["first_index"], shard["first_index"] + shard["transitions"]

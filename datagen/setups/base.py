@@ -81,6 +81,7 @@ class Setup:
     shift_bound: float  # |shift component| ≤ shift_bound (the MM shift may sit outside: it is fixed)
     default_transitions: int = 150_000
     default_shard_size: int = 32768  # transitions per shard: arm shards are smaller so workers stay balanced
+    default_walk_step: float = 1.0  # a walk's step (datagen/walks.py) in this body's motor units
     bytes_per_transition: int = 16  # an upper estimate of the zstd shards (measured: grid 15, arm 554), for disk checks
     preflight: Callable[[], None] = _nothing  # fails early (before anything is written) if unusable
     # versions beyond the libraries' that shape the bytes (a renderer, its driver and device)

@@ -79,7 +79,8 @@ class GridWorld:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Walks on the lattice of motor levels (datagen/walks.py): each motor moves by at most
         `step` levels per step."""
-        idx = lattice_walk(rng, self.n_motor, len(LEVELS), episodes, length, step)
+        whole = int(step) if float(step).is_integer() else step  # a config records it as a number
+        idx = lattice_walk(rng, self.n_motor, len(LEVELS), episodes, length, whole)
         return self.motors[idx], self.positions[idx]
 
     def sample_shifts(self, rng: np.random.Generator, n: int) -> np.ndarray:

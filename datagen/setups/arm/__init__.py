@@ -20,6 +20,7 @@ def _builder(n_motor: int):
 ARM_DEFAULTS = dict(
     shift_bound=SHIFT_BOUND,
     default_shard_size=8192,
+    default_walk_step=0.1,  # a standard deviation per motor per step, of the motor range [-1, 1]
     bytes_per_transition=640,
     preflight=require_render_device,
     provenance=render_provenance,
