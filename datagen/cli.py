@@ -271,14 +271,16 @@ def view(dataset, lake, limit, output) -> None:
 @click.command()
 @click.argument("dataset", shell_complete=complete_datasets)
 @LAKE_OPTION
-@click.option("--format", "fmt", type=click.Choice(["foxglove", "parquet", "hf"]), required=True)
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="The file (hf: the folder) to write.")
+@click.option("--format", "fmt", type=click.Choice(["foxglove", "parquet", "hf", "minari"]), required=True)
+@click.option(
+    "--out", type=click.Path(path_type=Path), required=True, help="The file (hf, minari: the folder) to write."
+)
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="Only the first N transitions.")
 @click.option("--overwrite", is_flag=True, help="Replace --out if it exists.")
 @friendly_errors
 def export(dataset, lake, fmt, out, limit, overwrite) -> None:
-    """Export a dataset: per-transition MCAP with Foxglove schemas, Parquet, or a Hugging Face
-    `datasets` folder with a dataset card."""
+    """Export a dataset: per-transition MCAP with Foxglove schemas, Parquet, a Hugging Face
+    `datasets` folder with a dataset card, or a Minari dataset of episodes."""
     from smspace.datagen.export import export as run
     from smspace.lake.dataset import Dataset
 

@@ -7,6 +7,7 @@
 - parquet: one row per transition for analysis tools; images as fixed_size_binary, the manifest
   in the schema metadata.
 - hf: a Hugging Face `datasets` folder with a dataset card (datagen/export_hf.py).
+- minari: a Minari datasets root holding the dataset as episodes (datagen/export_minari.py).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from smspace.lake.transitions import COLUMNS, Transitions
 
 EPOCH_NS = 1_575_763_200 * 10**9  # 2019-12-08T00:00:00Z, NeurIPS 2019
 STEP_NS = 10**6
-FORMATS = ("foxglove", "parquet", "hf")
+FORMATS = ("foxglove", "parquet", "hf", "minari")
 
 
 def _blocks(ds: Dataset, limit: int | None) -> Iterator[tuple[int, Transitions]]:
@@ -52,6 +53,10 @@ def export(ds: Dataset, fmt: str, out: Path, limit: int | None = None, overwrite
         from smspace.datagen.export_hf import export_hf
 
         return export_hf(ds, out, limit, overwrite)
+    if fmt == "minari":  # a Minari datasets root
+        from smspace.datagen.export_minari import export_minari
+
+        return export_minari(ds, out, limit, overwrite)
     check_output(out, overwrite, [ds.local_folder])
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -3,24 +3,20 @@ library itself (its ArrowWriter, one batch per lake block, then save_to_disk), s
 with its own reader and typed features; a dataset card (README.md) says what each feature is, where
 the data came from (the manifest's setup, mode, seed, config hash) and under which license.
 
-The folder is built under a temporary name beside --out and renamed only when complete; --overwrite
-replaces only a folder an earlier export made (it holds smspace.json), never any other folder.
+The folder is written as datagen/export_folder.py writes every folder export.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from smspace.common.errors import SmspaceError
+from smspace.datagen.export_folder import MARKER, built_folder
 from smspace.lake.dataset import Dataset
 from smspace.lake.transitions import COLUMNS, Transitions
 
-MARKER = "smspace.json"  # the manifest, in every folder this export writes
 CARD = "README.md"
 LICENSE = "mit"  # smspace's own license: a generated dataset is the project's output
 DESCRIPTIONS = {
@@ -33,6 +29,8 @@ DESCRIPTIONS = {
     "p_t1": "privileged: the sensor's egocentric position after the move",
     "shift_t": "privileged: the environment's shift before the move",
     "shift_t1": "privileged: the environment's shift after the move",
+    "episode": "walks only: the episode the transition belongs to",
+    "step": "walks only: the transition's step in its episode, from 0",
 }
 
 
@@ -48,7 +46,10 @@ def features_of(ds: Dataset):
         sensor = Array3D(shape=shape, dtype="uint8")
     else:
         sensor = List(Value("float32"), length=int(np.prod(shape)))
-    return Features({name: spec.get(name, sensor) for name in ("index", *COLUMNS)})
+    features = {name: spec.get(name, sensor) for name in ("index", *COLUMNS)}
+    if m.config.get("exploration") is not None:  # a walk: each transition's episode and step
+        features |= {"episode": Value("uint64"), "step": Value("uint32")}
+    return Features(features)
 
 
 def _write_arrow(ds: Dataset, path: Path, limit: int | None) -> None:
@@ -59,10 +60,12 @@ def _write_arrow(ds: Dataset, path: Path, limit: int | None) -> None:
     from smspace.datagen.export import _blocks
 
     flat = ds.manifest.sensor_dtype != "uint8"
+    walks = ds.episodes(limit)  # two integers per transition: held whole
     with ArrowWriter(features=features_of(ds), path=str(path)) as writer:
         for first, tr in _blocks(ds, limit):
             index = np.arange(first, first + len(tr), dtype=np.uint64)
-            writer.write_batch({"index": index} | _columns(tr, flat))
+            extra = {} if walks is None else {"episode": walks[0][index], "step": walks[1][index]}
+            writer.write_batch({"index": index} | _columns(tr, flat) | extra)
         writer.finalize()
 
 
@@ -89,44 +92,19 @@ def card(ds: Dataset, count: int) -> str:
     return "\n".join(lines)
 
 
-def _check_out(out: Path, overwrite: bool, reads: Path | None) -> None:
-    if reads is not None and out.resolve().is_relative_to(Path(reads).resolve()):
-        raise SmspaceError(f"{out} is inside {reads}, which this command reads; write it elsewhere")
-    if out.exists() or out.is_symlink():
-        if not overwrite:
-            raise SmspaceError(f"{out} exists; pass --overwrite to replace it")
-        if out.is_symlink() or not (out / MARKER).is_file():
-            raise SmspaceError(f"{out} is not an smspace hf export (no {MARKER}); --overwrite replaces only those")
-
-
 def export_hf(ds: Dataset, out: Path, limit: int | None = None, overwrite: bool = False) -> int:
     from datasets import Dataset as HFDataset
     from datasets import disable_progress_bars
 
-    out = Path(out)
-    _check_out(out, overwrite, ds.local_folder)
     disable_progress_bars()
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
-    except OSError as e:
-        raise SmspaceError(f"cannot write {out}: {e.strerror or e}") from e
-    try:
-        _write_arrow(ds, work / "batches.arrow", limit)
-        hf = HFDataset.from_file(str(work / "batches.arrow"))
-        folder = work / "dataset"
+    with built_folder(ds, out, overwrite, "hf") as folder:
+        arrow = folder.parent / "batches.arrow"
+        _write_arrow(ds, arrow, limit)
+        hf = HFDataset.from_file(str(arrow))
         hf.save_to_disk(str(folder))
         count = len(hf)
         del hf
         (folder / CARD).write_text(card(ds, count))
-        (folder / MARKER).write_text(ds.manifest.to_json())
-        if out.exists():
-            shutil.rmtree(out)
-        folder.rename(out)
-    except OSError as e:
-        raise SmspaceError(f"cannot write {out}: {e.strerror or e}") from e
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
     return count
 
 
