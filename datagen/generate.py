@@ -244,11 +244,17 @@ def probe_walk(setup: str, world_seed: int, walk: Exploration) -> None:
     """Refuse walks before anything is written if the setup's world cannot draw a short one that
     keeps the setup contract (a plugin's `walk_motors` answers to it as its other methods do)."""
     from smspace.datagen.parts import world_for
+    from smspace.datagen.setups import setup_label
     from smspace.datagen.setups.contract import check_block, declared
     from smspace.datagen.walks import draw_walks
 
     spec, world = get_setup(setup), world_for(setup, world_seed)
-    where = f"walks of world {world_seed} of {setup}"
+    if not callable(getattr(world, "walk_motors", None)):
+        raise SmspaceError(
+            f"setup {setup_label(setup)} cannot walk: its world, {type(world).__name__}, has no "
+            "walk_motors(rng, episodes, length, step)"
+        )
+    where = f"{setup_label(setup)}, walks of world {world_seed}"
     with plugins.guarded(setup_plugin(setup), f"drawing {where}"):
         walks = draw_walks(world, "MM", np.random.default_rng(0), 1, min(walk.length, 4), walk.step)
     check_block(walks.transitions, declared(spec, world, where), where)

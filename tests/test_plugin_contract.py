@@ -119,6 +119,21 @@ def test_a_setup_that_breaks_the_contract_is_refused_before_anything_is_written(
     assert not lake.exists() or not any(lake.glob(f"{setup}-*")), sorted(lake.rglob("*"))
 
 
+@pytest.mark.parametrize(
+    "setup, needle",
+    [
+        ("tiny", "cannot walk: its world, TinyWorld, has no walk_motors"),
+        ("widewalk", "motor states must lie in [-1, 1]"),
+    ],
+)
+def test_a_setup_that_cannot_walk_is_refused_before_anything_is_written(tmp_path, setup, needle):
+    lake = tmp_path / "lake"
+    line = one_error_line(run_cmd("smgen", "generate", "--setup", setup, "--mode", "MME", "--transitions", 3000,
+                                  "--exploration", "walk", "--walk-length", 10, "--lake", lake))  # fmt: skip
+    assert f"setup {setup!r} (smspace_bad_plugins:" in line and needle in line, line
+    assert not lake.exists() or not any(lake.glob(f"{setup}-*")), sorted(lake.rglob("*"))
+
+
 def test_a_nan_drawn_late_is_refused_before_its_part_is_committed(tmp_path):
     """The probe batch passes; a later part holds a NaN: nothing of it is stored, nothing is called
     written, and the lake reads as before (no dataset, no "corrupt manifest" anywhere)."""

@@ -73,6 +73,14 @@ class WideMotorWorld(TinyWorld):
         return 2 * m, p
 
 
+class WideWalkWorld(TinyWorld):
+    """Walks, but out of the motor range: a plugin's walk_motors answers to the contract too."""
+
+    def walk_motors(self, rng, episodes, length, step):
+        idx = rng.integers(0, len(self.motors), (episodes, length + 1))
+        return 2 * self.motors[idx], self.positions[idx]
+
+
 def _broken_build(seed: int):
     raise ValueError(f"room {seed} has no floor")
 
@@ -88,6 +96,7 @@ LATE_NAN = _setup("latenan", LateNanWorld)
 SHORT_SENSE = _setup("shortsense", ShortSenseWorld)
 WIDE_MOTORS = _setup("widemotors", WideMotorWorld)
 BROKEN_BUILD = _setup("brokenbuild", _broken_build)
+WIDE_WALK = _setup("widewalk", WideWalkWorld)
 
 
 class SoundNet(nn.Module):
