@@ -91,7 +91,7 @@ def generate(
 ) -> None:
     """Generate datasets (resumable: re-running completes what is missing)."""
     from smspace.datagen.executors import ExecutorOptions
-    from smspace.datagen.generate import Share
+    from smspace.datagen.generate import Share, default_sizes
     from smspace.datagen.generate import generate as run
     from smspace.datagen.setups import get_setup, parse_modes
     from smspace.lake.dataset import lake_store
@@ -100,12 +100,9 @@ def generate(
     check_seed_range(seed, worlds)
     modes = parse_modes(mode)
     walk = Exploration()
-    unit = 1
     if exploration == "walk":
         walk = Exploration("walk", walk_length, setup.default_walk_step if walk_step is None else walk_step)
-        unit = walk_length  # walks fill the defaults whole: they are rounded down to whole episodes
-    n = setup.default_transitions // unit * unit if transitions is None else transitions
-    shard_size = max(unit, setup.default_shard_size // unit * unit) if shard_size is None else shard_size
+    n, shard_size = default_sizes(setup.name, walk, transitions, shard_size)
     store = lake_store(lake)
     share = Share(rank, world_size)
     options = ExecutorOptions(workers=workers or default_workers(), gpus_per_task=gpus_per_task)

@@ -240,6 +240,16 @@ def _check_request(transitions: int, shard_size: int) -> None:
     SHARD_SIZE.coerce(shard_size, "--shard-size")
 
 
+def default_sizes(setup: str, walk: Exploration, transitions: int | None, shard_size: int | None) -> tuple[int, int]:
+    """(transitions, shard size): those given, else the setup's defaults, which walks round down to
+    whole episodes (a size given that is not is refused later, in one line)."""
+    spec = get_setup(setup)
+    unit = walk.length if walk.walks else 1
+    n = spec.default_transitions // unit * unit if transitions is None else transitions
+    shard = max(unit, spec.default_shard_size // unit * unit) if shard_size is None else shard_size
+    return n, shard
+
+
 def probe_walk(setup: str, world_seed: int, walk: Exploration) -> None:
     """Refuse walks before anything is written if the setup's world cannot draw a short one that
     keeps the setup contract (a plugin's `walk_motors` answers to it as its other methods do)."""

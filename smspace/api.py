@@ -73,17 +73,25 @@ def generate(
     transitions: int | None = None,
     lake: Lake | str | Path | None = None,
     workers: int = 1,
+    walk_length: int | None = None,
+    walk_step: float | None = None,
 ) -> list[Dataset]:
-    """Generate (or complete) the datasets of `worlds` worlds from `seed`, as `smgen generate`."""
+    """Generate (or complete) the datasets of `worlds` worlds from `seed`, as `smgen generate`;
+    with `walk_length`, walks of that many steps (`--exploration walk`)."""
+    from smspace.datagen.generate import default_sizes
     from smspace.datagen.generate import generate as run
     from smspace.datagen.setups import get_setup
+    from smspace.lake.exploration import Exploration
 
     spec = get_setup(setup)
+    walk = Exploration()
+    if walk_length is not None:
+        walk = Exploration("walk", walk_length, spec.default_walk_step if walk_step is None else walk_step)
     store = lake.store if isinstance(lake, Lake) else _open_store(lake)  # generation checks it
     mode_list = parse_modes(modes) if isinstance(modes, str) else list(modes)
-    n = spec.default_transitions if transitions is None else transitions
+    n, shard = default_sizes(setup, walk, transitions, None)
     seeds = world_seeds(seed, worlds)
-    results = run(store, setup, mode_list, seeds, n, spec.default_shard_size, workers=workers)
+    results = run(store, setup, mode_list, seeds, n, shard, workers=workers, exploration=walk)
     return [Dataset(store.child(manifest.dataset_id)) for manifest, _ in results]
 
 

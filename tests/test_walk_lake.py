@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from smspace import schemas
 from smspace.lake.dataset import Dataset
@@ -145,3 +146,52 @@ def test_bad_walk_requests_are_refused_before_anything_is_written(tmp_path, args
     result = smgen("generate", "--setup", "grid", "--mode", "MM", "--lake", lake, *base, *args)
     assert named in failed_in_one_line(result, "smgen")
     assert not lake.exists() or not any(p.name.startswith("grid-") for p in lake.iterdir())
+
+
+def _windows_of(batches) -> np.ndarray:
+    """Each sample of step-window batches as one row: per step, m_t, s_t, m_t1, s_t1."""
+    return np.vstack([torch.cat(b, dim=2).reshape(len(b.m_t), -1).numpy() for b in batches])
+
+
+def test_the_loader_streams_windows_of_consecutive_steps_once_each_and_resumes_exactly(walk_lake):
+    from smspace.lake.normalise import normalisers
+    from smspace.train.loader import TransitionStream, step_windows
+
+    ds = Dataset.open("grid-seed2-MME-walk", walk_lake)
+    stream = TransitionStream(ds, batch_size=32, seed=4, epochs=1, steps=5)
+    batches = list(stream)
+    assert batches[0].m_t.shape == (32, 5, 3) and batches[0].s_t1.shape == (32, 5, 4)
+    for b in batches:  # consecutive steps: each one starts where the step before it ended
+        np.testing.assert_array_equal(b.m_t[:, 1:], b.m_t1[:, :-1])
+        np.testing.assert_array_equal(b.s_t[:, 1:], b.s_t1[:, :-1])
+    got = _windows_of(batches)
+    t = ds.read_all()
+    m_norm, s_norm = normalisers(ds.manifest)
+    rows = np.hstack([m_norm(t.m_t), s_norm(t.s_t), m_norm(t.m_t1), s_norm(t.s_t1)])
+    expected = step_windows(rows, 40, 5)
+    assert len(got) == len(expected) == 100 * (40 - 5 + 1)
+    order = lambda x: x[np.lexsort(x.T[::-1])]  # noqa: E731
+    np.testing.assert_array_equal(order(got), order(expected))  # every window exactly once
+    # resumed after 17 batches, the stream goes on exactly as it would have
+    endless = lambda: TransitionStream(ds, batch_size=32, seed=4, steps=5)  # noqa: E731
+    full = _windows_of(b for _, b in zip(range(60), endless(), strict=False))
+    first = endless()
+    head = _windows_of(b for _, b in zip(range(17), first, strict=False))
+    resumed = endless()
+    resumed.load_state_dict(first.state_dict())
+    tail = _windows_of(b for _, b in zip(range(43), resumed, strict=False))
+    np.testing.assert_array_equal(np.vstack([head, tail]), full)
+    with pytest.raises(ValueError, match="5-step windows resumed with 1"):
+        TransitionStream(ds, batch_size=32, seed=4).load_state_dict(first.state_dict())
+
+
+def test_windows_need_walks_that_fit_them(walk_lake, tmp_path):
+    from smspace.train.loader import TransitionStream
+
+    with pytest.raises(ValueError, match=r"do not fit in .* episodes of 40"):
+        TransitionStream(Dataset.open("grid-seed2-MM-walk", walk_lake), steps=41)
+    assert (
+        smgen("generate", "--setup", "grid", "--mode", "MM", "--transitions", 2000, "--lake", tmp_path).exit_code == 0
+    )
+    with pytest.raises(ValueError, match="independent transitions: windows of 3 steps need walks"):
+        TransitionStream(Dataset.open("grid-seed0-MM", tmp_path), steps=3)

@@ -29,7 +29,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from smspace.lake.dataset import Dataset
-from smspace.lake.exploration import stored_batch
+from smspace.lake.exploration import Exploration, stored_batch
 from smspace.lake.manifest import Manifest
 from smspace.lake.normalise import normalisers
 from smspace.lake.shards import ShardReader
@@ -51,6 +51,26 @@ def dataset_units(manifest: Manifest) -> list[Unit]:
         lo, hi = shard["first_index"], shard["first_index"] + shard["transitions"]
         units += [Unit(i, start, min(batch, hi - start)) for start in range(lo, hi, batch)]
     return units
+
+
+def _walk_length(manifest: Manifest, steps: int) -> int:
+    """The episode length windows of `steps` are cut from (0 for transitions, where steps is 1)."""
+    walk = Exploration.from_record(manifest.config.get("exploration"))
+    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+        raise ValueError(f"steps: {steps!r}; a whole number from 1")
+    if steps > 1 and not walk.walks:
+        raise ValueError(f"{manifest.dataset_id} is independent transitions: windows of {steps} steps need walks")
+    if steps > 1 and steps > walk.length:
+        raise ValueError(f"windows of {steps} steps do not fit in {manifest.dataset_id}'s episodes of {walk.length}")
+    return walk.length if walk.walks else 0
+
+
+def step_windows(rows: np.ndarray, length: int, steps: int) -> np.ndarray:
+    """Every window of `steps` consecutive rows within each episode of `length` rows (a unit holds
+    whole episodes), each window flattened into one row: step-major, then the row's own columns."""
+    episodes = rows.reshape(len(rows) // length, length, rows.shape[1])
+    windows = np.lib.stride_tricks.sliding_window_view(episodes, steps, axis=1)  # (E, L - K + 1, W, K)
+    return np.ascontiguousarray(windows.transpose(0, 1, 3, 2)).reshape(-1, steps * rows.shape[1])
 
 
 def _rank(rank: int | None, world: int | None) -> tuple[int, int]:
@@ -105,11 +125,16 @@ class TransitionStream(IterableDataset):
         rank: int | None = None,
         world_size: int | None = None,
         lake: Any = None,
+        steps: int = 1,
     ):
         """`dataset`: a Dataset, its folder or URL, or an id in `lake` (a Lake, a folder, URL or
         store; default: $SMSPACE_LAKE or data/lake). rank/world_size default to torch.distributed's
         when it is initialised, else 0 of 1. They are resolved here, in the rank's own process: DataLoader
-        workers started by spawn have no process group, and resolving there made every rank read the whole dataset."""
+        workers started by spawn have no process group, and resolving there made every rank read the whole dataset.
+
+        `steps` > 1 (walk datasets only): each sample is K = steps consecutive steps of one episode
+        (every window of K steps in it, shuffled like transitions), and each of a batch's four
+        tensors gains a step axis: (batch, K, ...), with m_t1[:, k] the m_t of step k + 1."""
         super().__init__()
         self.rank, self.world_size = _rank(rank, world_size)
         self.dataset = dataset if isinstance(dataset, Dataset) else Dataset.open(str(dataset), lake)
@@ -117,6 +142,8 @@ class TransitionStream(IterableDataset):
         self.seed = seed
         self.epochs = epochs  # None: sample endlessly (step-based training)
         self.window = window
+        self.steps = steps
+        self.walk_length = _walk_length(self.dataset.manifest, steps)
         self.units = dataset_units(self.dataset.manifest)
         self.m_norm, self.s_norm = normalisers(self.dataset.manifest)
         self.batches_consumed = 0  # batches already delivered before this iterator starts
@@ -125,7 +152,7 @@ class TransitionStream(IterableDataset):
         self._restored_consumer: tuple[int, int, int] | None = None  # from load_state_dict, for the next iterator
         manifest = self.dataset.manifest
         row_bytes = 4 * 2 * (manifest.n_motor + math.prod(manifest.sensor_shape))  # normalised float32
-        self._caching = manifest.transitions * row_bytes <= CACHE_BYTES
+        self._caching = manifest.transitions * row_bytes * steps <= CACHE_BYTES
         self._decoded: dict[Unit, np.ndarray] = {}
         n_m, n_s = manifest.n_motor, math.prod(manifest.sensor_shape)
         edges = np.cumsum([0, n_m, n_s, n_m, n_s])
@@ -136,6 +163,8 @@ class TransitionStream(IterableDataset):
         """Where the stream is: the batches the main process drew; inside a DataLoader worker (as
         StatefulDataLoader asks for it) also this worker's own role and count."""
         state: dict[str, Any] = {"seed": self.seed, "batch_size": self.batch_size}
+        if self.steps > 1:  # absent for transitions: states saved before windows existed still load
+            state["steps"] = self.steps
         state["batches_consumed"] = self.batches_consumed
         if self._consumer is not None:
             g, n_consumers, delivered = self._consumer
@@ -145,6 +174,8 @@ class TransitionStream(IterableDataset):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state["seed"] != self.seed or state["batch_size"] != self.batch_size:
             raise ValueError("stream state belongs to another seed or batch size")
+        if int(state.get("steps", 1)) != self.steps:
+            raise ValueError(f"stream state of {state.get('steps', 1)}-step windows resumed with {self.steps}")
         self.batches_consumed = int(state["batches_consumed"])
         consumer = state.get("consumer")
         self._restored_consumer = (
@@ -178,6 +209,8 @@ class TransitionStream(IterableDataset):
             return cached
         t = readers[unit.shard].block_at(unit.first_index).transitions
         rows = np.hstack([self.m_norm(t.m_t), self.s_norm(t.s_t), self.m_norm(t.m_t1), self.s_norm(t.s_t1)])
+        if self.steps > 1:
+            rows = step_windows(rows, self.walk_length, self.steps)
         if self._caching:
             self._decoded[unit] = rows
         return rows
@@ -194,15 +227,23 @@ class TransitionStream(IterableDataset):
     def _columns(self, rows: np.ndarray) -> list[torch.Tensor]:
         """m_t, s_t, m_t1, s_t1 of `rows`, each contiguous, all four in one storage: a DataLoader
         worker hands a window's batches over through one shared-memory segment, not four per batch."""
-        n = len(rows)
+        n, k = len(rows), self.steps
+        stepped = rows.reshape(n, k, rows.shape[1] // k) if k > 1 else rows
         flat = torch.empty(rows.size, dtype=torch.float32)
         columns, offset = [], 0
         for a, b in self._column_bounds:
-            column = flat[offset : offset + n * (b - a)].view(n, b - a)
-            column.numpy()[...] = rows[:, a:b]
+            shape = (n, b - a) if k == 1 else (n, k, b - a)
+            column = flat[offset : offset + n * k * (b - a)].view(shape)
+            column.numpy()[...] = rows[:, a:b] if k == 1 else stepped[:, :, a:b]
             columns.append(column)
-            offset += n * (b - a)
+            offset += n * k * (b - a)
         return columns
+
+    def _row_count(self, unit: Unit) -> int:
+        """Samples in a unit: its transitions, or its windows of `steps` consecutive steps."""
+        if self.steps == 1:
+            return unit.count
+        return unit.count // self.walk_length * (self.walk_length - self.steps + 1)
 
     def _role(self) -> tuple[int, int, int]:
         """(consumer index, consumer count, batches this consumer already delivered).
@@ -239,7 +280,7 @@ class TransitionStream(IterableDataset):
         carry: np.ndarray | None = None  # rows of the previous window short of a whole batch
         try:
             for epoch, w, units in self._windows(g, n_consumers):
-                rows = sum(u.count for u in units)
+                rows = sum(self._row_count(u) for u in units)
                 if skip_rows >= rows:  # resuming: whole windows are skipped without reading them
                     skip_rows -= rows
                     continue
@@ -254,7 +295,7 @@ class TransitionStream(IterableDataset):
                 carry = window[whole:]
                 # the window's batches cut at once (views of its columns): per batch, nothing is left to do
                 batches = (
-                    column.view(whole // self.batch_size, self.batch_size, column.shape[1]).unbind(0)
+                    column.view(whole // self.batch_size, self.batch_size, *column.shape[1:]).unbind(0)
                     for column in self._columns(window[:whole])
                 )
                 for batch in zip(*batches, strict=True):
