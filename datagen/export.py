@@ -25,6 +25,7 @@ from smspace.common.cli import check_output
 from smspace.common.errors import SmspaceError
 from smspace.lake import parquet
 from smspace.lake.dataset import Dataset
+from smspace.lake.shards import Block
 from smspace.lake.transitions import COLUMNS, Transitions
 
 EPOCH_NS = 1_575_763_200 * 10**9  # 2019-12-08T00:00:00Z, NeurIPS 2019
@@ -32,15 +33,15 @@ STEP_NS = 10**6
 FORMATS = ("foxglove", "parquet", "hf", "minari")
 
 
-def _blocks(ds: Dataset, limit: int | None) -> Iterator[tuple[int, Transitions]]:
+def _blocks(ds: Dataset, limit: int | None) -> Iterator[Block]:
+    """The dataset's blocks in order, the last one cut at `limit` transitions."""
     done = 0
     for block in ds.blocks():
-        tr = block.transitions
-        if limit is not None and done + len(tr) > limit:
-            tr = tr[: limit - done]
-        if len(tr):
-            yield block.first_index, tr
-        done += len(tr)
+        if limit is not None and done + len(block.transitions) > limit:
+            block = block.head(limit - done)
+        if len(block.transitions):
+            yield block
+        done += len(block.transitions)
         if limit is not None and done >= limit:
             return
 
@@ -108,7 +109,8 @@ def _foxglove(ds: Dataset, out: Path, limit: int | None) -> int:
         pose_ch = {name: channel(f"/{name}", PoseInFrame) for name in ("p_t", "p_t1")}
         images = ds.manifest.sensor_dtype == "uint8"
         image_ch = {name: channel(f"/{name}", RawImage) for name in ("s_t", "s_t1")} if images else {}
-        for first, tr in _blocks(ds, limit):
+        for block in _blocks(ds, limit):
+            first, tr = block.first_index, block.transitions
             for i in range(len(tr)):
                 index = first + i
                 t = EPOCH_NS + index * STEP_NS
@@ -158,14 +160,14 @@ def _parquet(ds: Dataset, out: Path, limit: int | None) -> int:
     with atomic_writer(out) as fh:
         writer = None
         try:
-            for first, tr in _blocks(ds, limit):
-                table = transitions_table(first, tr)
+            for block in _blocks(ds, limit):
+                table = transitions_table(block.first_index, block.transitions)
                 if writer is None:
                     writer = pq.ParquetWriter(
                         fh, table.schema.with_metadata(meta), compression="zstd", use_dictionary=False
                     )
                 writer.write_table(table.replace_schema_metadata(meta), row_group_size=65536)
-                count += len(tr)
+                count += len(block.transitions)
         finally:  # also on a failed read, before atomic_writer drops the file: else the writer's
             if writer is not None:  # __del__ later writes to a closed file
                 writer.close()

@@ -60,11 +60,11 @@ def _write_arrow(ds: Dataset, path: Path, limit: int | None) -> None:
     from smspace.datagen.export import _blocks
 
     flat = ds.manifest.sensor_dtype != "uint8"
-    walks = ds.episodes(limit)  # two integers per transition: held whole
     with ArrowWriter(features=features_of(ds), path=str(path)) as writer:
-        for first, tr in _blocks(ds, limit):
-            index = np.arange(first, first + len(tr), dtype=np.uint64)
-            extra = {} if walks is None else {"episode": walks[0][index], "step": walks[1][index]}
+        for block in _blocks(ds, limit):
+            tr = block.transitions
+            index = np.arange(block.first_index, block.first_index + len(tr), dtype=np.uint64)
+            extra = {} if block.episode is None else {"episode": block.episode, "step": block.step}
             writer.write_batch({"index": index} | _columns(tr, flat) | extra)
         writer.finalize()
 

@@ -86,8 +86,9 @@ def _blocks(ds: Dataset, limit: int | None) -> Iterator[list]:
     """Buffers of whole episodes, one list per lake block; a limit keeps whole episodes only."""
     done = 0
     for block in ds.blocks():
+        episodes = list(_episodes_of(block))
         buffers = []
-        for rows, episode_id in _episodes_of(block):
+        for rows, episode_id in episodes:
             size = rows.stop - rows.start
             if limit is not None and done + size > limit:
                 break
@@ -95,7 +96,7 @@ def _blocks(ds: Dataset, limit: int | None) -> Iterator[list]:
             done += size
         if buffers:
             yield buffers
-        if limit is not None and (done >= limit or len(buffers) < len(list(_episodes_of(block)))):
+        if limit is not None and (done >= limit or len(buffers) < len(episodes)):
             return
 
 

@@ -96,11 +96,10 @@ def _log_paths(rec, times, tr, step: np.ndarray) -> None:
 def view_dataset(ds: Dataset, limit: int | None, output: ViewOutput) -> int:
     import rerun as rr
 
-    tr = ds.read_all(limit)
+    tr, walks = ds.read_walk(limit)
     n = len(tr)
     images = tr.s_t.dtype == np.uint8
     setup = get_setup(ds.manifest.setup)
-    walks = ds.episodes(limit)
     layout = blueprint(images, setup.view_world is not None, walks is not None)
     with recording("smspace", ds.manifest.dataset_id, layout, output, ds.local_folder) as rec:
         times = [rr.TimeColumn("transition", sequence=np.arange(n))]

@@ -105,34 +105,38 @@ class Dataset:
         included: for analysis; the training stream leaves them out)."""
         return self.read_all(limit)
 
-    def read_all(self, limit: int | None = None) -> Transitions:
-        """The first `limit` transitions (all by default) in index order, as numpy arrays; only the
-        blocks needed are read (paper-sized sets fit in memory)."""
-        parts, have = [], 0
+    def _first_blocks(self, limit: int | None) -> list[Block]:
+        """The blocks holding the first `limit` transitions (all by default); only those are read."""
+        blocks, have = [], 0
         for block in self.blocks():
-            parts.append(block.transitions)
+            blocks.append(block)
             have += len(block.transitions)
             if limit is not None and have >= limit:
                 break
-        if not parts:
+        if not blocks:
             raise SmspaceError(f"dataset {self.url} has no transitions")
-        return Transitions.concat(parts)[:limit]
+        return blocks
+
+    @staticmethod
+    def _episodes_of(blocks: list[Block], limit: int | None) -> tuple[np.ndarray, np.ndarray] | None:
+        if any(b.episode is None or b.step is None for b in blocks):
+            return None
+        return np.concatenate([b.episode for b in blocks])[:limit], np.concatenate([b.step for b in blocks])[:limit]
+
+    def read_all(self, limit: int | None = None) -> Transitions:
+        """The first `limit` transitions (all by default) in index order, as numpy arrays; only the
+        blocks needed are read (paper-sized sets fit in memory)."""
+        return Transitions.concat([b.transitions for b in self._first_blocks(limit)])[:limit]
 
     def episodes(self, limit: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
         """(episode, step) of the first `limit` transitions of a walk dataset; None for independent
         transitions, which have neither."""
-        episode, step, have = [], [], 0
-        for block in self.blocks():
-            if block.episode is None or block.step is None:
-                return None
-            episode.append(block.episode)
-            step.append(block.step)
-            have += len(block.episode)
-            if limit is not None and have >= limit:
-                break
-        if not episode:
-            return None
-        return np.concatenate(episode)[:limit], np.concatenate(step)[:limit]
+        return self._episodes_of(self._first_blocks(limit), limit)
+
+    def read_walk(self, limit: int | None = None) -> tuple[Transitions, tuple[np.ndarray, np.ndarray] | None]:
+        """read_all and episodes in one pass over the blocks."""
+        blocks = self._first_blocks(limit)
+        return Transitions.concat([b.transitions for b in blocks])[:limit], self._episodes_of(blocks, limit)
 
     def regular_sampling(self) -> tuple[np.ndarray, np.ndarray]:
         with ShardReader(self.store, self._recorded(self.manifest.regular_sampling)) as reader:

@@ -48,6 +48,11 @@ class Block:
     def version(self) -> int:
         return schemas.TRANSITIONS_VERSION if self.episode is None else schemas.WALKS_VERSION
 
+    def head(self, n: int) -> Block:
+        """The block's first n transitions, with their episode and step indices."""
+        cut = lambda x: None if x is None else x[:n]  # noqa: E731
+        return Block(self.first_index, self.transitions[:n], cut(self.episode), cut(self.step))
+
 
 def _sensor_column(column: schemas.transitions_pb2.SensorColumn, s: np.ndarray) -> None:
     if s.dtype == np.uint8:
