@@ -500,7 +500,7 @@ def test_the_web_viewer_dies_with_its_parent(sig):
         while time.time() < deadline and not listening(web):
             time.sleep(0.2)
         assert listening(web)
-        viewers = {p.pid for p in psutil.process_iter() if p.ppid() == proc.pid}
+        viewers = {p.pid for p in psutil.process_iter(["ppid"]) if p.info["ppid"] == proc.pid}
         assert viewers
         proc.send_signal(getattr(signal, sig))
         proc.wait(timeout=30)

@@ -140,7 +140,9 @@ def test_web_viewer_binds_loopback_and_ctrl_c_stops_everything():
         assert body is not None and b"<html" in body.lower()
         assert listeners(web) == {"127.0.0.1"} and listeners(grpc) == {"127.0.0.1"}
         children = psutil.Process(proc.pid).children(recursive=True)
-        viewer_pids = {p.pid for p in children} | {c.pid for c in psutil.process_iter() if c.ppid() == proc.pid}
+        viewer_pids = {p.pid for p in children} | {
+            c.pid for c in psutil.process_iter(["ppid"]) if c.info["ppid"] == proc.pid
+        }
         proc.send_signal(signal.SIGINT)
         try:
             _, err = proc.communicate(timeout=60)  # communicate: a full stderr pipe must not stall it
