@@ -67,6 +67,24 @@ def stop_group(proc: subprocess.Popen, timeout: float = 20) -> None:
         proc.wait(timeout)
 
 
+def children_of(pid: int) -> set[int]:
+    """Processes whose parent is `pid`, listed so that one exiting mid-listing is skipped, not raised
+    (a busy machine's processes come and go)."""
+    return {p.pid for p in psutil.process_iter(["ppid"]) if p.info["ppid"] == pid}
+
+
+def alive(pids: set[int] | list[int]) -> list[int]:
+    """Those of `pids` still running (a zombie has ended); one that exits while checked is ended."""
+    running = []
+    for pid in pids:
+        try:
+            if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                running.append(pid)
+        except psutil.NoSuchProcess:
+            continue
+    return running
+
+
 def processes_marked(marker: str) -> list[int]:
     """Processes whose environment carries SMSPACE_TEST_MARK=marker: all a command started, even
     daemons that left its process tree."""

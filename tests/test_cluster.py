@@ -13,7 +13,7 @@ import psutil
 import pytest
 
 from tests.conftest import BIN, dataset_files, local_files, same_but_provenance, smgen
-from tests.servers import assert_loopback_only, processes_marked, tree
+from tests.servers import alive, assert_loopback_only, processes_marked, tree
 
 GRID = ["--setup", "grid", "--transitions", "6000", "--shard-size", "2500", "--seed", "3"]
 
@@ -220,11 +220,11 @@ def _ray_generation(tmp_path) -> tuple[subprocess.Popen, set[int]]:
 def _gone_within(pids: set[int], seconds: float) -> list[str]:
     deadline = time.time() + seconds
     while time.time() < deadline:
-        alive = [p for p in pids if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
-        if not alive:
+        running = alive(pids)
+        if not running:
             return []
         time.sleep(0.2)
-    return [psutil.Process(p).name() for p in alive if psutil.pid_exists(p)]
+    return [psutil.Process(p).name() for p in running if psutil.pid_exists(p)]
 
 
 @pytest.mark.slow

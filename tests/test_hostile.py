@@ -15,6 +15,7 @@ import torch
 from smspace.train.run_dir import RunDir, RunView
 
 from .conftest import BIN, SAMPLES, smgen, smtrain
+from .servers import alive, children_of
 
 
 @pytest.fixture
@@ -435,9 +436,7 @@ def test_the_disk_estimate_counts_only_missing_shards(tmp_path, monkeypatch):
 
 # -- no process outlives the command that started it ------------------------------------------------
 def _descendants_alive(pids: set[int]) -> list[int]:
-    import psutil
-
-    return [p for p in pids if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+    return alive(pids)
 
 
 def _wait_gone(pids: set[int], seconds: float = 15) -> list[int]:
@@ -500,7 +499,7 @@ def test_the_web_viewer_dies_with_its_parent(sig):
         while time.time() < deadline and not listening(web):
             time.sleep(0.2)
         assert listening(web)
-        viewers = {p.pid for p in psutil.process_iter(["ppid"]) if p.info["ppid"] == proc.pid}
+        viewers = children_of(proc.pid)
         assert viewers
         proc.send_signal(getattr(signal, sig))
         proc.wait(timeout=30)

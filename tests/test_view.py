@@ -16,7 +16,7 @@ from smspace.datagen.export import read_parquet_transitions
 from smspace.lake.dataset import Dataset
 
 from .conftest import BIN, RERUN_ENV, SAMPLES, rerun, rrd_rows, run_cmd, smgen
-from .servers import free_port
+from .servers import alive, children_of, free_port
 
 
 def rrd_components(path) -> str:
@@ -140,9 +140,7 @@ def test_web_viewer_binds_loopback_and_ctrl_c_stops_everything():
         assert body is not None and b"<html" in body.lower()
         assert listeners(web) == {"127.0.0.1"} and listeners(grpc) == {"127.0.0.1"}
         children = psutil.Process(proc.pid).children(recursive=True)
-        viewer_pids = {p.pid for p in children} | {
-            c.pid for c in psutil.process_iter(["ppid"]) if c.info["ppid"] == proc.pid
-        }
+        viewer_pids = {p.pid for p in children} | children_of(proc.pid)
         proc.send_signal(signal.SIGINT)
         try:
             _, err = proc.communicate(timeout=60)  # communicate: a full stderr pipe must not stall it
@@ -152,7 +150,7 @@ def test_web_viewer_binds_loopback_and_ctrl_c_stops_everything():
         assert "http://127.0.0.1:" in err
         time.sleep(0.5)
         assert not listeners(web) and not listeners(grpc)
-        assert not [p for p in viewer_pids if psutil.pid_exists(p) and psutil.Process(p).status() != "zombie"]
+        assert not alive(viewer_pids)
     finally:
         if proc.poll() is None:
             proc.kill()
