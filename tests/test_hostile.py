@@ -435,17 +435,13 @@ def test_the_disk_estimate_counts_only_missing_shards(tmp_path, monkeypatch):
 
 
 # -- no process outlives the command that started it ------------------------------------------------
-def _descendants_alive(pids: set[int]) -> list[int]:
-    return alive(pids)
-
-
 def _wait_gone(pids: set[int], seconds: float = 15) -> list[int]:
     import time
 
     deadline = time.time() + seconds
-    while time.time() < deadline and _descendants_alive(pids):
+    while time.time() < deadline and alive(pids):
         time.sleep(0.1)
-    return _descendants_alive(pids)
+    return alive(pids)
 
 
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGKILL"])
