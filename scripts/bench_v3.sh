@@ -4,7 +4,9 @@
 # are copied into docs/bench/<task>/results/ (tracked; the run folders with their checkpoints stay
 # in WORK, which is only needed to resume) and that task's leaderboard is rebuilt.
 #   nohup setsid bash scripts/bench_v3.sh WORK [TASK ...] > WORK.out 2>&1 &
-# WORK: where the lake and the runs live (outside the checkout). The same command continues.
+# WORK: where the lake and the runs live (outside the checkout). The same command continues: from
+# WORK's checkpoints, and, where WORK was lost with a machine, an entry whose result is already
+# published (its scores.json in PUBLISH) is not trained again; only the entries still missing run.
 # PUBLISH (default: this checkout's docs/bench): where results are copied, every 10 minutes while a
 # task runs (an entry's folder once its scores.json exists) and when it ends.
 set -euo pipefail
@@ -32,10 +34,23 @@ mirror() {  # copy each entry's result of task $1 that has scores into $publish/
   done
 }
 
+missing() {  # the entries of task $1 whose result is not published yet
+  local entry
+  for entry in "${entries[@]}"; do
+    [ -f "$publish/$1/results/$label/$entry/$1/scores.json" ] || echo "$entry"
+  done
+}
+
 for task in "${tasks[@]}"; do
-  echo "$(date -u +%FT%TZ) start $task" >> "$work/chain.log"
-  .venv/bin/smtrain bench "$suite" "${entries[@]}" --task "$task" --lake "$work/lake" --out "$work/runs" \
-    --workers 2 > "$work/log-$task" 2>&1 &
+  mapfile -t todo < <(missing "$task")
+  echo "$(date -u +%FT%TZ) start $task: ${todo[*]:-every entry published}" >> "$work/chain.log"
+  if [ ${#todo[@]} -eq 0 ]; then
+    : > "$work/log-$task"
+    true &
+  else
+    .venv/bin/smtrain bench "$suite" "${todo[@]}" --task "$task" --lake "$work/lake" --out "$work/runs" \
+      --workers 2 > "$work/log-$task" 2>&1 &
+  fi
   pid=$!
   while kill -0 "$pid" 2>/dev/null; do
     for _ in 1 2 3 4 5 6 7 8 9 10; do kill -0 "$pid" 2>/dev/null || break; sleep 60; done
