@@ -285,3 +285,57 @@ class SlowFeatureNet(nn.Module):
         cov = centred.T @ centred / (len(h) - 1)
         eye = torch.eye(h.shape[1], dtype=h.dtype, device=h.device)
         return slowness + self.whitening * (mean.pow(2).sum() + (cov - eye).pow(2).sum())
+
+
+class PathIntegratorNet(nn.Module):
+    """A recurrent path integrator (the place- and grid-cell line: Cueva & Wei 2018, Banino et al.
+    2018 trained recurrent networks to integrate velocities), the model that reads walks: h of a
+    window's first posture from Net_enc, every later h integrated from the motor changes alone,
+    h_k+1 = h_k + Net_int(h_k, m_t1_k − m_t_k), and each step's sensation predicted from (h_k, h_k+1,
+    s_t_k) as the paper's predictor does. A consistency term ‖h_k+1 − Net_enc(m_t1_k)‖² ties the
+    integrated state to the encoded one, so encode(m), which the metrics read, is where integration
+    arrives. An integration error compounds over the window: the longer it is, the more h must be a
+    space in which a motor change acts as the same displacement wherever it starts. With one step
+    (transitions, or --window 1) it is the paper's network whose h_t1 is integrated from the move."""
+
+    reads_windows = True  # the engine gives its objective (B, K, ·) windows (train/model.py)
+
+    def __init__(
+        self,
+        n_motor: int,
+        n_sensor: int,
+        n_h: int,
+        encoder_layers: Sequence[int],
+        predictor_layers: Sequence[int],
+        consistency: float = 1.0,
+        integrator_layers: Sequence[int] = (100,),
+    ):
+        super().__init__()
+        if not consistency >= 0:
+            raise ValueError(f"consistency must be >= 0 (got {consistency})")
+        self.consistency = float(consistency)
+        self.encoder = mlp([n_motor, *encoder_layers, n_h])
+        self.integrator = mlp([n_h + n_motor, *integrator_layers, n_h])
+        self.predictor = mlp([2 * n_h + n_sensor, *predictor_layers, n_sensor])
+
+    def encode(self, m: torch.Tensor) -> torch.Tensor:
+        return self.encoder(m)
+
+    def integrate(self, h: torch.Tensor, move: torch.Tensor) -> torch.Tensor:
+        return h + self.integrator(torch.cat([h, move], dim=-1))
+
+    def forward(self, m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor) -> torch.Tensor:
+        h_t = self.encoder(m_t)
+        return self.predictor(torch.cat([h_t, self.integrate(h_t, m_t1 - m_t), s_t], dim=-1))
+
+    def objective(self, m_t: torch.Tensor, s_t: torch.Tensor, m_t1: torch.Tensor, s_t1: torch.Tensor) -> torch.Tensor:
+        steps = m_t.shape[1]  # (B, K, ·): K from the shape, the same on every call of a run
+        encoded = self.encoder(m_t1)
+        h, predicted, consistent = self.encoder(m_t[:, 0]), 0.0, 0.0
+        for k in range(steps):
+            h_next = self.integrate(h, m_t1[:, k] - m_t[:, k])
+            pred = self.predictor(torch.cat([h, h_next, s_t[:, k]], dim=-1))
+            predicted = predicted + prediction_loss(pred, s_t1[:, k])
+            consistent = consistent + (h_next - encoded[:, k]).pow(2).sum(dim=-1).mean()
+            h = h_next
+        return (predicted + self.consistency * consistent) / steps

@@ -156,6 +156,11 @@ def check_study_model(template: TrainConfig, setup: str, seed: int) -> None:
     its contract on a probe batch (train/contract.py). The world is the one generation's pre-flight
     builds and keeps (datagen/parts.py, world_for)."""
     resolve_device(template.device)
+    if template.window > 1:  # a study's datasets are what smgen generates by default
+        raise SmspaceError(
+            f"window: {template.window}; a study generates independent transitions, and windows need walks "
+            "(smtrain fit DATASET --window K trains on a walk dataset)"
+        )
     world = world_for(setup, seed)
     n_motor, n_sensor = get_setup(setup).n_motor, int(np.prod(world.sensor_shape))
     with plugins.guarded(setup_plugin(setup), f"in regular_sampling() of world {seed}"):

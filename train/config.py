@@ -50,6 +50,7 @@ def layers_within_bounds(sizes: Sequence[int]) -> bool:
     return len(sizes) <= MAX_LAYERS and all(1 <= s <= MAX_WIDTH for s in sizes)
 
 
+MAX_WINDOW = 4096  # steps per window: longer than any walk a lake holds is a typo
 UNIT_BYTES = 256  # the loader's record of one batch unit (a small Python object and its list slot)
 
 
@@ -80,6 +81,13 @@ class TrainConfig:
     # the flags
     steps: int = flag(100_000, "Training steps.", minimum=1, maximum=10**10)
     batch_size: int = flag(100, "Transitions per step.", minimum=1, maximum=10**7)
+    window: int = flag(
+        1,
+        "Consecutive steps per sample, for a model that reads windows (walk datasets only; docs/MODEL.md §6): "
+        "each of a batch's rows is K steps of one episode.",
+        minimum=1,
+        maximum=MAX_WINDOW,
+    )
     n_h: int = flag(3, "Dimension of h.", name="--nh", minimum=1, maximum=MAX_WIDTH)
     encoder_layers: list[int] = flag([], "Net_enc hidden sizes, e.g. 150,100,50 [default: the paper's for the setup].")  # noqa: RUF009 - flag() returns a field
     predictor_layers: list[int] = flag(list(PAPER_PREDICTOR), "Net_pred hidden sizes.")  # noqa: RUF009
@@ -152,7 +160,12 @@ class TrainConfig:
         return f"{self.dataset_id}-nh{self.n_h}-seed{self.seed}"
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """config.json's fields. `window` only when a run reads windows: a run of single transitions
+        keeps the bytes (and the terms) it had before windows existed."""
+        raw = asdict(self)
+        if raw["window"] == 1:
+            del raw["window"]
+        return raw
 
     @classmethod
     def from_dict(cls, raw: dict[str, Any]) -> TrainConfig:
@@ -254,7 +267,7 @@ def memory_needed(cfg: TrainConfig, n_motor: int, n_sensor: int, n_regular: int,
         + 4 * 3 * cfg.batch_size * widths
         + 4 * max(cfg.batch_size, n_regular) * (sum(cfg.encoder_layers) + cfg.n_h)
         + cfg.eval_transitions * (row + 4 * widths)
-        + row * (cfg.shuffle_window * 1024 + 2 * cfg.batch_size)
+        + row * cfg.window * (cfg.shuffle_window * 1024 + 2 * cfg.batch_size)
     )
     return runs * per_run
 

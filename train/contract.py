@@ -30,6 +30,7 @@ from smspace.train.model import (
     model_plugin,
     noise_dim,
     prediction_loss,
+    reads_windows,
 )
 
 
@@ -71,14 +72,19 @@ def _probe(cfg: TrainConfig, n_motor: int, n_sensor: int, stacked: bool) -> None
         _expect(label, "encode(m)", h, (batch, n_h), batch, f"(B, N_h) = ({batch}, {n_h})")
         if not any(p.requires_grad for p in model.parameters()):
             raise SmspaceError(f"{label} has no trainable parameters")
+        with plugins.guarded(plugin, "in its reads_windows"):
+            windows = _check_windows(model, label, cfg.window)
         with plugins.guarded(plugin, "in its noise_dim"):
             dim = noise_dim(model, label)
         noise = [torch.randn(batch, dim, generator=generator)] if dim else []
+        if windows:  # its objective's batch: windows of K steps that follow on (m_t1 of k is m_t of k + 1)
+            m_t, s_t, m_t1 = _probe_windows(batch, cfg.window, n_motor, n_sensor, generator)
         if has_objective(model):
-            s_t1 = torch.rand(batch, n_sensor, generator=generator)
+            s_t1 = torch.rand(*s_t.shape, generator=generator)
             with plugins.guarded(plugin, "in objective() on a probe batch"):
                 loss = model.objective(m_t, s_t, m_t1, s_t1, *noise)
-            _expect(label, "objective(m_t, s_t, m_t1, s_t1)", loss, (), batch, "a scalar, shape () (the batch's mean)")
+            call = f"objective() on windows of {cfg.window} steps" if windows else "objective(m_t, s_t, m_t1, s_t1)"
+            _expect(label, call, loss, (), batch, "a scalar, shape () (the batch's mean)")
         else:
             loss = prediction_loss(pred, s_t)
         if not loss.requires_grad:
@@ -89,8 +95,31 @@ def _probe(cfg: TrainConfig, n_motor: int, n_sensor: int, stacked: bool) -> None
             with plugins.guarded(plugin, "in after_step()"):
                 _check_after_step(model, label)
         if stacked:
-            inputs = (m_t, s_t, m_t1, torch.rand(batch, n_sensor, generator=generator), *noise)
+            inputs = (m_t, s_t, m_t1, torch.rand(*s_t.shape, generator=generator), *noise)
             _check_stacked(model, label, inputs)
+
+
+def _check_windows(model: torch.nn.Module, label: str, window: int) -> bool:
+    """Whether the model reads windows (train/model.py, reads_windows); a window asked of a model
+    that reads single transitions, or windows for a model with no objective to read them, is one line."""
+    windows = reads_windows(model)
+    if window > 1 and not windows:
+        raise SmspaceError(
+            f"{label} reads single transitions; --window {window} needs a model that reads windows "
+            "(reads_windows = True, docs/API.md)"
+        )
+    if windows and not has_objective(model):
+        raise SmspaceError(f"{label} reads windows (reads_windows) but has no objective() to be given them")
+    return windows
+
+
+def _probe_windows(
+    batch: int, steps: int, n_motor: int, n_sensor: int, generator: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """m_t, s_t, m_t1 of `batch` windows of `steps` consecutive steps, (B, K, ·)."""
+    m = torch.rand(batch, steps + 1, n_motor, generator=generator) * 2 - 1
+    s = torch.rand(batch, steps, n_sensor, generator=generator)
+    return m[:, :-1].contiguous(), s, m[:, 1:].contiguous()
 
 
 def _check_after_step(model: torch.nn.Module, label: str) -> None:

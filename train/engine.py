@@ -35,12 +35,14 @@ from smspace.train.distributed import SINGLE, Ranks, lost_a_peer, mean_over_rank
 from smspace.train.ensemble import Stacked, adam_state_of_run, load_adam_state
 from smspace.train.model import (
     Method,
+    as_windows,
     build_model,
     has_after_step,
     has_objective,
     model_label,
     noise_dim,
     prediction_loss,
+    reads_windows,
 )
 from smspace.train.precision import autocast, compiled
 from smspace.train.worker_batches import worker_batches
@@ -244,6 +246,7 @@ class SingleLearner:
         self.model, self.optimizer, self.data, self.ranks = model, optimizer, data, ranks
         self.precision, self.compile, self.seed = precision, compile, seed
         self.noise_dim, self.after_step = noise_dim(model), has_after_step(model)
+        self.windows = reads_windows(model)
         self._trained: torch.nn.Module | None = None
         self._loss: Callable | None = None
 
@@ -270,6 +273,8 @@ class SingleLearner:
     def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]], step: int) -> torch.Tensor:
         device = self.data.m_regular.device
         m_t, s_t, m_t1, s_t1 = (x.to(device, non_blocking=True) for x in batches[0])
+        if self.windows:
+            m_t, s_t, m_t1, s_t1 = (as_windows(x, 1) for x in (m_t, s_t, m_t1, s_t1))
         noise = []
         if self.noise_dim:
             noise = [step_noise([self.seed], step, self.ranks.rank, len(m_t), self.noise_dim, device)[0]]
@@ -286,11 +291,14 @@ class SingleLearner:
     def check_batch(self, batches: Sequence[tuple[torch.Tensor, ...]], label: str) -> None:
         device = self.data.m_regular.device
         m_t, s_t, m_t1, s_t1 = (x.to(device) for x in batches[0])
-        pred = self.model(m_t, s_t, m_t1)
+        if self.windows:  # the objective reads the windows, forward the first step of each
+            m_t, s_t, m_t1, s_t1 = (as_windows(x, 1) for x in (m_t, s_t, m_t1, s_t1))
+        first = [x[:, 0] for x in (m_t, s_t, m_t1, s_t1)] if self.windows else [m_t, s_t, m_t1, s_t1]
+        pred = self.model(*first[:3])
         noise = [m_t.new_zeros(len(m_t), self.noise_dim)] if self.noise_dim else []
         own = has_objective(self.model)
         loss = self.model.objective(m_t, s_t, m_t1, s_t1, *noise) if own else prediction_loss(pred, s_t1)
-        check_outputs(label, loss, pred, s_t1, stacked=False)
+        check_outputs(label, loss, pred, first[3], stacked=False)
 
     @torch.no_grad()
     def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
@@ -321,6 +329,7 @@ class EnsembleLearner:
         self.stacked = Stacked([build(cfg, n_motor, n_sensor, device)[0] for cfg in cfgs])
         self.optimizer = adam(self.stacked.parameters(), cfgs[0].lr_start)
         self.seeds, self.noise_dim = [cfg.seed for cfg in cfgs], noise_dim(self.stacked.model)
+        self.windows = reads_windows(self.stacked.model)
         own = has_objective(self.stacked.model)
         forward = self.stacked.objective if own else self.stacked.forward
         loss = step_loss(forward, cfgs[0].precision, data[0].m_regular.device, own)
@@ -336,6 +345,8 @@ class EnsembleLearner:
     def train_step(self, batches: Sequence[tuple[torch.Tensor, ...]], step: int) -> torch.Tensor:
         device = self.m_regular.device
         m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(device) for k in range(4))
+        if self.windows:
+            m_t, s_t, m_t1, s_t1 = (as_windows(x, 2) for x in (m_t, s_t, m_t1, s_t1))
         noise = [step_noise(self.seeds, step, 0, m_t.shape[1], self.noise_dim, device)] if self.noise_dim else []
         per_run = self._loss(m_t, s_t, m_t1, s_t1, *noise)
         self.optimizer.zero_grad(set_to_none=True)
@@ -347,11 +358,14 @@ class EnsembleLearner:
     @torch.no_grad()
     def check_batch(self, batches: Sequence[tuple[torch.Tensor, ...]], label: str) -> None:
         m_t, s_t, m_t1, s_t1 = (torch.stack([b[k] for b in batches]).to(self.m_regular.device) for k in range(4))
-        pred = self.stacked.forward(m_t, s_t, m_t1)
+        if self.windows:  # the objective reads the windows, forward the first step of each
+            m_t, s_t, m_t1, s_t1 = (as_windows(x, 2) for x in (m_t, s_t, m_t1, s_t1))
+        first = [x[:, :, 0] for x in (m_t, s_t, m_t1, s_t1)] if self.windows else [m_t, s_t, m_t1, s_t1]
+        pred = self.stacked.forward(*first[:3])
         own = has_objective(self.stacked.model)
         noise = [m_t.new_zeros(*m_t.shape[:2], self.noise_dim)] if self.noise_dim else []
         loss = self.stacked.objective(m_t, s_t, m_t1, s_t1, *noise) if own else prediction_loss(pred, s_t1)
-        check_outputs(label, loss, pred, s_t1, stacked=True)
+        check_outputs(label, loss, pred, first[3], stacked=True)
 
     @torch.no_grad()
     def evaluate(self) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:

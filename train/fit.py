@@ -28,7 +28,7 @@ from smspace.train.config import RUNS, TrainConfig, check_resources, flag_fields
 from smspace.train.contract import check_model
 from smspace.train.distributed import SINGLE, Ranks, peer_errors, per_rank_batch
 from smspace.train.engine import EvalData, Evaluation, Member, resolve_device
-from smspace.train.loader import TransitionStream
+from smspace.train.loader import TransitionStream, walk_length
 from smspace.train.precision import compile_decision, compiles
 from smspace.train.run_dir import CHECKPOINT, RunDir
 from smspace.train.terms import check_one_ensemble, resumed
@@ -91,6 +91,7 @@ def plan_fit(
     cfg = replace(template.for_dataset(ds.store, ds.manifest), world_size=world)
     resolve_device(cfg.device)
     check_resources(cfg, ds.manifest)
+    check_window(cfg, ds.manifest)
     check_network(cfg, ds.manifest)
     per_rank_batch(cfg.batch_size, Ranks(0, world))
     where = out or f"{RUNS}/{cfg.run_name}"
@@ -103,6 +104,15 @@ def plan_fit(
 def _shape(manifest) -> tuple[int, int]:
     """(n_motor, n_sensor): what a run's network is built for."""
     return manifest.n_motor, int(np.prod(manifest.sensor_shape))
+
+
+def check_window(cfg: TrainConfig, manifest) -> None:
+    """Windows of `--window` steps fit the dataset: a walk whose episodes hold them (the loader's
+    own rule, train/loader.py), refused in one line before a run folder is written."""
+    try:
+        walk_length(manifest, cfg.window)
+    except ValueError as e:
+        raise SmspaceError(f"--window {cfg.window}: {e}") from None
 
 
 def check_network(cfg: TrainConfig, manifest) -> None:
@@ -157,9 +167,8 @@ def open_member(run: RunDir, cfg: TrainConfig, device: torch.device, ranks: Rank
         if ranks.primary:
             run.write_config(cfg)
     batch = per_rank_batch(cfg.batch_size, ranks)
-    stream = TransitionStream(
-        ds, batch, seed=cfg.seed, window=cfg.shuffle_window, rank=ranks.rank, world_size=ranks.world
-    )
+    ranked = {"rank": ranks.rank, "world_size": ranks.world}
+    stream = TransitionStream(ds, batch, seed=cfg.seed, window=cfg.shuffle_window, steps=cfg.window, **ranked)
     return Member(run.url, cfg, stream, eval_data(ds, cfg.eval_transitions, device)), ds
 
 

@@ -53,7 +53,7 @@ def dataset_units(manifest: Manifest) -> list[Unit]:
     return units
 
 
-def _walk_length(manifest: Manifest, steps: int) -> int:
+def walk_length(manifest: Manifest, steps: int) -> int:
     """The episode length windows of `steps` are cut from (0 for transitions, where steps is 1)."""
     walk = Exploration.from_record(manifest.config.get("exploration"))
     if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
@@ -143,7 +143,7 @@ class TransitionStream(IterableDataset):
         self.epochs = epochs  # None: sample endlessly (step-based training)
         self.window = window
         self.steps = steps
-        self.walk_length = _walk_length(self.dataset.manifest, steps)
+        self.walk_length = walk_length(self.dataset.manifest, steps)
         self.units = dataset_units(self.dataset.manifest)
         self.m_norm, self.s_norm = normalisers(self.dataset.manifest)
         self.batches_consumed = 0  # batches already delivered before this iterator starts

@@ -95,6 +95,19 @@ def has_objective(model: nn.Module) -> bool:
     return callable(getattr(model, "objective", None))
 
 
+def reads_windows(model: nn.Module) -> bool:
+    """Whether a model trains on windows of consecutive steps (its `reads_windows` attribute, True):
+    its objective is given (B, K, ·) tensors, K = the run's `--window` (1 included), where every
+    other model is given (B, ·) transitions. Its forward and encode stay per transition, so its
+    evaluation (the prediction loss on fixed transitions, h of the regular sampling) is everyone's."""
+    return getattr(model, "reads_windows", False) is True
+
+
+def as_windows(x: torch.Tensor, step_axis: int) -> torch.Tensor:
+    """A batch column as windows: a (B, ·) column of single transitions gains a step axis of 1."""
+    return x.unsqueeze(step_axis) if x.dim() == step_axis + 1 else x
+
+
 NOISE_LIMIT = 4096  # standard-normal numbers per row a model may ask for
 
 
