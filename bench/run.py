@@ -35,7 +35,6 @@ from smspace.common.processes import alive
 from smspace.common.progress import duration
 from smspace.common.provenance import cpu, git_commit, version
 from smspace.lake.dataset import Dataset
-from smspace.lake.manifest import dataset_id
 from smspace.lake.records import BENCH_RESULT, BENCH_SCORES, UnknownFormat
 from smspace.lake.store import Store, exists, listing, open_store, within
 from smspace.metrics.scores import scores_of
@@ -191,8 +190,8 @@ def check_entry_model(task: Task, entry: Entry) -> None:
 
     template = TrainConfig(dataset="", model=entry.name, model_params=dict(entry.params), n_h=task.n_h,
                            steps=task.steps, eval_every=task.eval_every)  # fmt: skip
-    check_study_model(template.for_setup(task.setup, task.transitions, get_setup(task.setup).encoder_layers),
-                      task.setup, task.seed)  # fmt: skip
+    encoder, walk = get_setup(task.setup).encoder_layers, task.explored.record()
+    check_study_model(template.for_setup(task.setup, task.transitions, encoder, walk), task.setup, task.seed)
 
 
 TEMPORARY = "smspace-bench-"
@@ -220,7 +219,7 @@ def plan_bench(
     lines += busy_cores_note()
     for task in suite.tasks:
         generate_s, _, line = plan_generation(task.setup, task.world_seeds, task.modes, task.transitions, lake,
-                                              gen_workers or workers)  # fmt: skip
+                                              gen_workers or workers, exploration=task.explored)  # fmt: skip
         lines.append(f"{suite.label} task {task.name}: {line}")
         total_s += generate_s  # once per task, whichever entry comes first
         for entry in entries:
@@ -296,9 +295,9 @@ def _scored(
     from the positions the task's setup gives, exactly as the leaderboard derives them again."""
     world, mode = row["world"], row["mode"]
     p = evidence.positions(task.setup, world)
-    _, stored = Dataset.open(dataset_id(task.setup, world, mode), lake).regular_sampling()
+    _, stored = Dataset.open(task.dataset_of(world, mode), lake).regular_sampling()
     if not np.array_equal(np.asarray(stored, np.float64), p):
-        where = f"{lake.url}/{dataset_id(task.setup, world, mode)}"
+        where = f"{lake.url}/{task.dataset_of(world, mode)}"
         raise SmspaceError(
             f"{where}: its regular sampling is not the one setup {task.setup} gives world {world} today; "
             "give the suite a lake of its own"
@@ -317,13 +316,11 @@ def _scored(
 def _generate(task: Task, lake: Store, gen_workers: int, executor: str, notify: Callable[[str], None]) -> None:
     """The task's datasets, generated (or completed) if missing."""
     from smspace.datagen.generate import generate
-    from smspace.datagen.setups import get_setup
 
-    shard = get_setup(task.setup).default_shard_size
     clock = time.monotonic()
     results = generate(
-        lake, task.setup, task.modes, task.world_seeds, task.transitions, shard, workers=gen_workers,
-        executor=executor, notify=notify,
+        lake, task.setup, task.modes, task.world_seeds, task.transitions, task.shard_size, workers=gen_workers,
+        executor=executor, notify=notify, exploration=task.explored,
     )  # fmt: skip
     if any(new for _, new in results):
         notify(f"bench: {task.name}'s datasets generated in {time.monotonic() - clock:.0f} s")
@@ -333,7 +330,7 @@ def _represent(task: Task, entry: Entry, lake: Store, folder: Store) -> list[Sco
     rows = []
     for seed in task.world_seeds:
         for mode in task.modes:
-            ds = Dataset.open(dataset_id(task.setup, seed, mode), lake)
+            ds = Dataset.open(task.dataset_of(seed, mode), lake)
             clock = time.monotonic()
             h = REPRESENTATIONS[entry.name](ds, task.n_h, seed)
             row = {"world": seed, "mode": mode, "step": 0, "wall_s": time.monotonic() - clock,
@@ -353,6 +350,9 @@ def study_sections(task: Task, entry: Entry) -> dict[str, dict[str, Any]]:
     """The study a learned entry trains on a task: the task's datasets, its protocol, the entry's model."""
     study = {"name": task.name, "setup": task.setup, "modes": list(task.modes), "worlds": task.worlds,
              "seed": task.seed, "transitions": task.transitions}  # fmt: skip
+    walk = task.explored
+    if walk.walks:  # the study generates the task's walks, as smgen would
+        study |= {"exploration": "walk", "walk_length": walk.length, "walk_step": walk.step}
     train = {"model": entry.name, "steps": task.steps, "eval_every": task.eval_every, "n_h": task.n_h}
     return {"study": study, "train": train | ({"model_params": entry.params} if entry.params else {})}
 

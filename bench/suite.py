@@ -13,6 +13,7 @@ import json
 from dataclasses import asdict, dataclass, field, replace
 
 from smspace.common.errors import SmspaceError
+from smspace.lake.exploration import Exploration
 from smspace.lake.manifest import GenConfig, dataset_id
 from smspace.lake.transitions import MODES
 
@@ -28,6 +29,7 @@ class Task:
     eval_every: int
     n_h: int = 3
     seed: int = 0
+    exploration: Exploration | None = None  # walks (lake/exploration.py); None: the paper's transitions
     # sha256 (16 hex digits) over every dataset's (id, config hash): `datasets()` recomputed must match
     datasets_hash: str = field(default="", compare=False)
 
@@ -35,23 +37,42 @@ class Task:
     def world_seeds(self) -> list[int]:
         return list(range(self.seed, self.seed + self.worlds))
 
+    @property
+    def explored(self) -> Exploration:
+        return self.exploration or Exploration()
+
+    @property
+    def shard_size(self) -> int:
+        """The setup's shard size (walks: rounded down to whole episodes), as smgen generates it."""
+        from smspace.datagen.generate import default_sizes
+
+        return default_sizes(self.setup, self.explored, self.transitions, None)[1]
+
+    def dataset_of(self, seed: int, mode: str) -> str:
+        """The id of the task's dataset of world `seed` in `mode` (walks end in -walk)."""
+        return dataset_id(self.setup, seed, mode) + self.explored.suffix
+
     def datasets(self) -> dict[str, str]:
         """{dataset id: config hash} as generation configures them today."""
-        from smspace.datagen.setups import get_setup, setup_plugin
+        from smspace.datagen.setups import setup_plugin
 
-        shard, plugin = get_setup(self.setup).default_shard_size, setup_plugin(self.setup)
+        plugin = setup_plugin(self.setup)
         record = plugin.record() if plugin is not None else None  # a plugin's code is part of its datasets'
+        walk = self.explored.record()
         return {
-            dataset_id(self.setup, seed, mode): GenConfig(
-                self.setup, mode, seed, self.transitions, shard, plugin=record
+            self.dataset_of(seed, mode): GenConfig(
+                self.setup, mode, seed, self.transitions, self.shard_size, plugin=record, exploration=walk
             ).config_hash
             for seed in self.world_seeds
             for mode in self.modes
         }
 
     def protocol(self) -> dict:
-        """What the task fixes, as a result records it (the hash included)."""
-        return asdict(self) | {"modes": list(self.modes), "datasets_hash": self.datasets_hash}
+        """What the task fixes, as a result records it (the hash included). A task of transitions
+        records no exploration: the results published before walks existed still verify."""
+        fixed = asdict(self) | {"modes": list(self.modes), "datasets_hash": self.datasets_hash}
+        del fixed["exploration"]
+        return fixed | ({"exploration": self.exploration.record()} if self.exploration else {})
 
 
 def datasets_hash(datasets: dict[str, str]) -> str:
@@ -106,6 +127,15 @@ FLOORS_W6 = tuple(
     for task, digest in zip(FLOORS, ("662ffab805e59dd6", "aa2ae76f42b9410f", "8dd4e1f4544e4b9c"), strict=True)
 )
 
+V3 = (GRID_W10, GRID6_W10, ARM_W6, *FLOORS_W6)
+
+# Version 4 adds the agent that explores as a robot does (issue 44): grid-w10 and arm-w6 again, each
+# world's datasets drawn as walks of 50 steps (the setup's step; docs/MODEL.md, "walk") instead of
+# independent transitions, everything else as it was, so each world's two results pair up.
+WALK = Exploration("walk", 50, 1.0)
+GRID_WALK_W10 = replace(GRID_W10, name="grid-walk-w10", exploration=WALK, datasets_hash="abe6923e18714796")
+ARM_WALK_W6 = replace(ARM_W6, name="arm-walk-w6", exploration=replace(WALK, step=0.1), datasets_hash="35b75b4feb2f2c79")
+
 # `quick`: minutes on two cores, numbers already meaningful: the grid's three modes on 6 worlds
 # of 30000 transitions, 3000 steps (the learned entries' orders show by then; docs/BENCHMARK.md)
 QUICK_GRID = Task("grid", "grid", MODES, 6, 30_000, 3_000, 500, datasets_hash="bb3508de8043fc46")
@@ -113,15 +143,21 @@ QUICK_GRID = Task("grid", "grid", MODES, 6, 30_000, 3_000, 500, datasets_hash="b
 # `tiny`: what the tests run end to end (minutes of two cores); v2 adds a task, as versions do
 TINY_GRID = Task("grid", "grid", ("MM", "MME"), 2, 3_000, 60, 30, datasets_hash="8e25481a7b4aa843")
 TINY_GRID6 = Task("grid6", "grid6", ("MM",), 1, 3_000, 60, 30, datasets_hash="6efe825bac0b07f5")
+TINY_GRID_WALK = replace(TINY_GRID, name="grid-walk", exploration=WALK, datasets_hash="11799a9cc4163e3c")
 
 SUITES: dict[str, tuple[Suite, ...]] = {
     "spatial": (
         Suite("spatial", 1, (GRID, GRID6, ARM)),
         Suite("spatial", 2, (GRID, GRID6, ARM, *FLOORS)),
-        Suite("spatial", 3, (GRID, GRID6, ARM, *FLOORS, GRID_W10, GRID6_W10, ARM_W6, *FLOORS_W6)),
+        Suite("spatial", 3, (GRID, GRID6, ARM, *FLOORS, *V3)),
+        Suite("spatial", 4, (GRID, GRID6, ARM, *FLOORS, *V3, GRID_WALK_W10, ARM_WALK_W6)),
     ),
     "quick": (Suite("quick", 1, (QUICK_GRID,)),),
-    "tiny": (Suite("tiny", 1, (TINY_GRID,)), Suite("tiny", 2, (TINY_GRID, TINY_GRID6))),
+    "tiny": (
+        Suite("tiny", 1, (TINY_GRID,)),
+        Suite("tiny", 2, (TINY_GRID, TINY_GRID6)),
+        Suite("tiny", 3, (TINY_GRID, TINY_GRID6, TINY_GRID_WALK)),
+    ),
 }
 
 

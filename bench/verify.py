@@ -27,7 +27,6 @@ from smspace.bench.scores import evaluation_steps
 from smspace.bench.suite import Task, datasets_hash, get_suite
 from smspace.common.differing import differing
 from smspace.common.errors import DatasetCorrupt, SmspaceError
-from smspace.lake.manifest import dataset_id
 from smspace.lake.records import BENCH_RESULT, BENCH_SCORES, Record
 from smspace.lake.store import Store
 from smspace.metrics.scores import SCORES, scores_of
@@ -121,7 +120,7 @@ def _read(folder: Store, record: Record) -> Any:
 
 
 def _check_datasets(datasets: dict[str, str], task: Task, where: str) -> None:
-    ids = {dataset_id(task.setup, w, m) for w in task.world_seeds for m in task.modes}
+    ids = {task.dataset_of(w, m) for w in task.world_seeds for m in task.modes}
     if set(datasets) != ids:
         raise SmspaceError(f"{where}: datasets are not the task's {len(ids)} ({task.name}'s worlds x modes)")
     if datasets_hash(datasets) != task.datasets_hash:

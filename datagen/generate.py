@@ -271,13 +271,17 @@ def probe_walk(setup: str, world_seed: int, walk: Exploration) -> None:
 
 
 def check_disk(
-    lake: Store | str, setup: str, modes: Iterable[str], world_seeds: Iterable[int], transitions: int
-) -> None:
+    lake: Store | str, setup: str, modes: Iterable[str], world_seeds: Iterable[int], transitions: int,
+    exploration: Exploration | None = None,
+) -> None:  # fmt: skip
     """What `generate` would refuse for want of disk, refused by a caller that writes before it
     (a study records itself first)."""
-    spec = get_setup(setup)
+    spec, walk = get_setup(setup), exploration or Exploration()
+    shard = default_sizes(setup, walk, transitions, None)[1]
     configs = [
-        GenConfig(setup, mode, seed, transitions, spec.default_shard_size) for seed in world_seeds for mode in modes
+        GenConfig(setup, mode, seed, transitions, shard, exploration=walk.record())
+        for seed in world_seeds
+        for mode in modes
     ]
     _check_disk(check_lake(lake), configs, spec.bytes_per_transition, Share())
 

@@ -6,6 +6,9 @@
     worlds = 10                   # world seeds seed .. seed + worlds - 1
     seed = 0
     transitions = 150000          # optional: the setup's default
+    exploration = "walk"          # optional: "transitions" (the default) or walks (docs/MODEL.md)
+    walk_length = 50              # walks only: steps per episode [50]
+    walk_step = 1.0               # walks only: per step, the setup's unit [the setup's]
     [train]                       # any field of `smtrain fit`'s flags, by its config name
     steps = 100000
     [grid]                        # optional: one sub-study per combination of these values
@@ -43,6 +46,7 @@ from smspace.common.cli import EXECUTORS, MAX_ENSEMBLE, MAX_WORKERS
 from smspace.common.differing import described
 from smspace.common.errors import SmspaceError
 from smspace.lake.bounds import SEED, TRANSITIONS, WORLDS, Bounded, world_seeds_problem
+from smspace.lake.exploration import KINDS, MAX_LENGTH, MAX_STEP, Exploration
 from smspace.lake.records import STUDY_FILE
 from smspace.lake.transitions import MODES
 from smspace.train.config import TrainConfig, finite_positive, flag_fields
@@ -55,6 +59,9 @@ SECTIONS = ("study", "train", "grid", "pairs", "run")
 # [run] keys and their bounds: the same as the flags' (a million workers started a process per run)
 RUN_KEYS = {"workers": (1, MAX_WORKERS), "gen_workers": (1, MAX_WORKERS), "max_ensemble": (1, MAX_ENSEMBLE),
             "executor": None}  # fmt: skip
+WALK_LENGTH = 50  # smgen generate --walk-length's default
+TABLES = ("train", "grid", "pairs")
+EXPLORATION_DEFAULTS = {"exploration": "transitions", "walk_length": None, "walk_step": None}
 MAX_COMBINATIONS = 1000  # sub-studies in one file: each is a folder, a plan and a dry-run line
 NOT_TRAINABLE = ("seed",)  # a run's seed is its world's
 SETUP_KEY = "setup"  # the one [grid] key that is not a training field: a sub-study per setup
@@ -75,10 +82,22 @@ class StudyFile:
     run: dict[str, Any] = field(default_factory=dict)
     pairs: dict[str, list[Any]] = field(default_factory=dict)
     overrides: list[str] = field(default_factory=list)  # `section.key=value` given on the command line
+    exploration: str = "transitions"  # or "walk" (lake/exploration.py)
+    walk_length: int | None = None  # walks: steps per episode [WALK_LENGTH]
+    walk_step: float | None = None  # walks: per step [the setup's default_walk_step]
 
     @property
     def world_seeds(self) -> list[int]:
         return list(range(self.seed, self.seed + self.worlds))
+
+    def exploration_of(self, setup: str) -> Exploration:
+        """How the datasets of `setup` explore: as `smgen generate` would with the same words."""
+        from smspace.datagen.setups import get_setup
+
+        if self.exploration != "walk":
+            return Exploration()
+        step = get_setup(setup).default_walk_step if self.walk_step is None else self.walk_step
+        return Exploration("walk", WALK_LENGTH if self.walk_length is None else self.walk_length, step)
 
     def combinations(self) -> list[dict[str, Any]]:
         """One {field: value} per sub-study, in the file's order ([{}] without a grid): the grid's
@@ -108,7 +127,13 @@ class StudyFile:
         return frozenset(self.train) | frozenset(k for k in combination if k != SETUP_KEY)
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """As recorded: a study of transitions records no exploration (its record is the one it was
+        before walks existed)."""
+        raw = asdict(self)
+        for key, default in EXPLORATION_DEFAULTS.items():
+            if raw[key] == default:
+                del raw[key]
+        return raw
 
 
 def folder_name(combination: dict[str, Any]) -> str:
@@ -278,7 +303,7 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
         raise bad("study.setup", "missing (the setup every dataset of the study is generated with, or grid.setup)")
     if "setup" in study and varied:
         raise bad(f"{varied[0]}.setup", "is also set in [study]: give it in one place")
-    known = {"name", "setup", "modes", "worlds", "seed", "transitions"}
+    known = {"name", "setup", "modes", "worlds", "seed", "transitions", *EXPLORATION_DEFAULTS}
     for key in study:
         if key not in known:
             raise bad(f"study.{key}", f"unknown key (keys: {', '.join(sorted(known))})")
@@ -298,6 +323,8 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
     if transitions is not None:
         transitions = _bounded(TRANSITIONS, transitions, bad, "study.transitions")
 
+    explored = _exploration(study, bad)
+
     fields_by_name = {f.name: f for f in flag_fields() if f.name not in NOT_TRAINABLE}
     train = {k: _train_value(fields_by_name, k, v, bad, f"train.{k}") for k, v in raw.get("train", {}).items()}
     sizes = [len(v) if isinstance(v, list) else 1 for v in raw.get("grid", {}).values()]
@@ -316,7 +343,7 @@ def parse_study(raw: dict[str, Any], where: str, default_name: str = "study") ->
         shown = ", ".join(f"{k} {len(v)}" for k, v in pairs.items())
         raise bad("pairs", f"lists of different lengths ({shown}): each value is paired with those at its place")
     run = _run_section(raw.get("run", {}), bad)
-    resolved = StudyFile(name, setup, modes, worlds, seed, transitions, train, grid, run, pairs)
+    resolved = StudyFile(name, setup, modes, worlds, seed, transitions, train, grid, run, pairs, **explored)
     for combination in resolved.combinations():  # what only the whole config can check (lr > 0…)
         try:
             resolved.config(combination)
@@ -348,6 +375,25 @@ def _varied(fields_by_name: dict[str, Field], train: dict[str, Any], section: st
     if once and len({json.dumps(v, sort_keys=True) for v in checked}) != len(checked):
         raise bad(f"{section}.{key}", "names a value twice")
     return checked
+
+
+def _exploration(study: dict[str, Any], bad) -> dict[str, Any]:
+    """[study]'s exploration keys, checked: a kind, and for walks a length and a step in bounds."""
+    kind = study.get("exploration", "transitions")
+    if kind not in KINDS:
+        raise bad("study.exploration", f"{kind!r:.60} is not one of {', '.join(KINDS)}")
+    found = {"exploration": kind, "walk_length": None, "walk_step": None}
+    for key in ("walk_length", "walk_step"):
+        if key in study and kind != "walk":
+            raise bad(f"study.{key}", 'is for walks: set exploration = "walk" too')
+    if "walk_length" in study:
+        found["walk_length"] = _integer(study["walk_length"], bad, "study.walk_length", 1, MAX_LENGTH)
+    if "walk_step" in study:
+        step = study["walk_step"]
+        if not (isinstance(step, int | float) and not isinstance(step, bool) and 0 < step <= MAX_STEP):
+            raise bad("study.walk_step", f"{step!r:.60} is not a number in (0, {MAX_STEP}]")
+        found["walk_step"] = float(step)
+    return found
 
 
 def _check_setup(setup: str, bad, key: str) -> None:
@@ -455,8 +501,9 @@ def changes(recorded: dict[str, Any], now: dict[str, Any]) -> list[str]:
     """What differs between the study recorded in a folder and the file given now, one phrase per
     key ("study.worlds 3 -> 4"); how it runs ([run]) is not part of what a study computes."""
     out = []
-    for section in ("name", "setup", "modes", "worlds", "seed", "transitions", "train", "grid", "pairs"):
-        a, b = recorded.get(section), now.get(section)
+    for section in ("name", "setup", "modes", "worlds", "seed", "transitions", *EXPLORATION_DEFAULTS, *TABLES):
+        default = EXPLORATION_DEFAULTS.get(section)  # absent: a study recorded before walks, or of transitions
+        a, b = recorded.get(section, default), now.get(section, default)
         if isinstance(a, dict) and isinstance(b, dict):
             out += described(a, b, prefix=f"{section}.")
         else:

@@ -20,6 +20,7 @@ from smspace.common.main_guard import refuse_unguarded
 from smspace.common.progress import duration
 from smspace.datagen.generate import check_disk
 from smspace.datagen.setups import get_setup
+from smspace.lake.exploration import Exploration
 from smspace.lake.manifest import dataset_id
 from smspace.lake.records import STUDY_FILE, MalformedRecord
 from smspace.lake.store import Store, exists, free_bytes, open_store
@@ -58,6 +59,7 @@ def combinations(study: StudyFile, out: Store) -> list[Combination]:
             study.config(values),
             study.transitions,
             study.given(values),
+            study.exploration_of(study.setup_of(values)),
         )
         found.append(Combination(values, out.child(name) if name else out, plan))
     _refuse_the_same_runs_twice(found)
@@ -227,13 +229,14 @@ class Plan:
 
 def plan_generation(
     setup: str, world_seeds: Sequence[int], modes: Sequence[str], n: int, lake: Store, gen_workers: int,
-    probe: SetupProbe | None = None,
+    probe: SetupProbe | None = None, exploration: Exploration | None = None,
 ) -> tuple[float, float, str]:  # fmt: skip
     """(seconds, bytes, a line saying so) to generate the datasets of `setup` the lake lacks, at the
     rates measured here and now."""
     spec = get_setup(setup)
     probe = probe or SetupProbe.of(setup, world_seeds[0], modes[0])
-    ids = [dataset_id(setup, seed, mode) for seed in world_seeds for mode in modes]
+    suffix = (exploration or Exploration()).suffix
+    ids = [dataset_id(setup, seed, mode) + suffix for seed in world_seeds for mode in modes]
     missing = [i for i in ids if not exists(lake.child(i), "manifest.json")]
     parts = len(missing) * -(-n // spec.default_shard_size)
     lanes = max(1, min(gen_workers, parts))
@@ -275,10 +278,11 @@ def plan_study(
     spawn_s = budget.process_start_s()  # this command's own start, and each spawned worker's
     gen_s = gen_bytes = 0.0
     for setup in setups:
-        n = get_setup(setup).default_transitions if study.transitions is None else study.transitions
+        plan = next(c.plan for c in combos if c.plan.setup == setup)
         seconds, size, line = plan_generation(
-            setup, study.world_seeds, study.modes, n, lake, gen_workers, probes[setup]
-        )
+            setup, study.world_seeds, study.modes, plan.n_transitions, lake, gen_workers, probes[setup],
+            plan.exploration,
+        )  # fmt: skip
         gen_s, gen_bytes = gen_s + seconds, gen_bytes + size
         lines.append(line)
     total_bytes = 0
@@ -287,12 +291,13 @@ def plan_study(
     for combo in combos:
         setup = combo.plan.setup
         spec, probe = get_setup(setup), probes[setup]
-        template = combo.plan.template.for_setup(setup, combo.plan.n_transitions, spec.encoder_layers)
+        explored, n = combo.plan.exploration, combo.plan.n_transitions
+        template = combo.plan.template.for_setup(setup, n, spec.encoder_layers, explored.record())
         record = None if overwrite else SweepRecord.read(combo.out)
         states = {
             name: _run_state(combo.out, name, template.steps, overwrite)
             for name in (
-                replace(template, dataset_id=dataset_id(setup, seed, mode), seed=seed).run_name
+                replace(template, dataset_id=dataset_id(setup, seed, mode) + explored.suffix, seed=seed).run_name
                 for seed in study.world_seeds
                 for mode in study.modes
             )
@@ -341,7 +346,8 @@ def _refuse_what_the_lake_cannot_hold(lake: Store, study: StudyFile, combos: lis
     """Generation's own disk check (datagen/generate.py), made before the study writes its records:
     the run and its dry run refuse alike."""
     for setup in dict.fromkeys(c.plan.setup for c in combos):
-        check_disk(lake, setup, study.modes, study.world_seeds, combos[0].plan.n_transitions)
+        plan = next(c.plan for c in combos if c.plan.setup == setup)
+        check_disk(lake, setup, study.modes, study.world_seeds, plan.n_transitions, plan.exploration)
 
 
 def _refuse_what_run_folders_cannot_hold(out: Store, run_bytes: float) -> None:

@@ -11,7 +11,7 @@ from their checkpoints, grouped by the step they reached.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -22,9 +22,10 @@ from smspace.common.bounded import run_within
 from smspace.common.differing import differing
 from smspace.common.errors import SmspaceError
 from smspace.common.executors import WorkerDied, open_executor
-from smspace.datagen.generate import generate
+from smspace.datagen.generate import default_sizes, generate
 from smspace.datagen.parts import world_for
 from smspace.datagen.setups import get_setup, setup_plugin
+from smspace.lake.exploration import Exploration
 from smspace.lake.manifest import load_manifest
 from smspace.lake.store import Store, exists, listing, open_store, within
 from smspace.study.monitor import StudyMonitor, monitored
@@ -63,12 +64,14 @@ def recorded_study(out: Store) -> dict[str, Any] | None:
 
 
 def study_terms(
-    template: TrainConfig, setup: str, transitions: int, out: Store, overwrite: bool, explicit: frozenset[str]
-) -> tuple[TrainConfig, str | None]:
+    template: TrainConfig, setup: str, transitions: int, out: Store, overwrite: bool, explicit: frozenset[str],
+    exploration: dict[str, Any] | None = None,
+) -> tuple[TrainConfig, str | None]:  # fmt: skip
     """The template every run of the study trains with (train/terms.py, rule 4), and the line
-    saying how the study changed; checked before any dataset is generated."""
+    saying how the study changed; checked before any dataset is generated. The exploration is a
+    term: a folder of transitions runs never takes walk runs."""
     recorded = None if overwrite else recorded_study(out)
-    resolved = template.for_setup(setup, transitions, get_setup(setup).encoder_layers)
+    resolved = template.for_setup(setup, transitions, get_setup(setup).encoder_layers, exploration)
     return study_template(recorded, resolved, explicit, out.url)
 
 
@@ -130,16 +133,28 @@ class SweepPlan:
     template: TrainConfig
     transitions: int | None = None
     explicit: frozenset[str] = frozenset()
+    exploration: Exploration = field(default_factory=Exploration)
 
     @property
     def n_transitions(self) -> int:
-        return get_setup(self.setup).default_transitions if self.transitions is None else self.transitions
+        """The size given, or the setup's default (walks: rounded down to whole episodes)."""
+        return default_sizes(self.setup, self.exploration, self.transitions, None)[0]
+
+    @property
+    def shard_size(self) -> int:
+        return default_sizes(self.setup, self.exploration, self.transitions, None)[1]
 
 
 def check_terms(study: SweepPlan, out: Store, overwrite: bool) -> tuple[TrainConfig, str | None]:
     """The template the sweep in `out` trains with, and the line that says how its terms change;
     refused before anything is generated if they may not, or if its model breaks its contract."""
-    template, change = study_terms(study.template, study.setup, study.n_transitions, out, overwrite, study.explicit)
+    problem = study.exploration.problem(study.n_transitions, study.shard_size)
+    if problem is not None:
+        raise SmspaceError(f"datasets of {study.setup}: {problem}")
+    explored = study.exploration.record()
+    template, change = study_terms(
+        study.template, study.setup, study.n_transitions, out, overwrite, study.explicit, explored
+    )
     check_study_model(template, study.setup, study.world_seeds[0])
     return template, change
 
@@ -156,11 +171,14 @@ def check_study_model(template: TrainConfig, setup: str, seed: int) -> None:
     its contract on a probe batch (train/contract.py). The world is the one generation's pre-flight
     builds and keeps (datagen/parts.py, world_for)."""
     resolve_device(template.device)
-    if template.window > 1:  # a study's datasets are what smgen generates by default
+    walk = Exploration.from_record(template.exploration)
+    if template.window > 1 and not walk.walks:
         raise SmspaceError(
-            f"window: {template.window}; a study generates independent transitions, and windows need walks "
-            "(smtrain fit DATASET --window K trains on a walk dataset)"
+            f"window: {template.window}; this study generates independent transitions, and windows need walks "
+            '(study.exploration = "walk")'
         )
+    if template.window > 1 and template.window > walk.length:
+        raise SmspaceError(f"window: {template.window} steps do not fit in the study's episodes of {walk.length}")
     world = world_for(setup, seed)
     n_motor, n_sensor = get_setup(setup).n_motor, int(np.prod(world.sensor_shape))
     with plugins.guarded(setup_plugin(setup), f"in regular_sampling() of world {seed}"):
@@ -193,10 +211,9 @@ def prepare(
         template, change = check_terms(study, out, overwrite)
         if change:
             notify(change)
-    spec = get_setup(study.setup)
     results = generate(
-        lake, study.setup, study.modes, study.world_seeds, study.n_transitions, spec.default_shard_size,
-        workers=gen_workers, notify=notify,
+        lake, study.setup, study.modes, study.world_seeds, study.n_transitions, study.shard_size,
+        workers=gen_workers, notify=notify, exploration=study.exploration,
     )  # fmt: skip
     datasets = [open_store(lake).child(m.dataset_id) for m, _ in results]
     plans = plan_runs(template, datasets, out, overwrite)

@@ -100,7 +100,8 @@ def test_the_datasets_a_suite_fixed_are_the_ones_generation_configures():
 
 def test_suite_names_and_versions_are_checked():
     assert get_suite("tiny").version == len(SUITES["tiny"]) and get_suite("tiny@1").version == 1
-    for bad, said in [("nope", "unknown suite 'nope'"), ("tiny@0", "versions 1..2"), ("tiny@x", "versions 1..2")]:
+    versions = f"versions 1..{len(SUITES['tiny'])}"
+    for bad, said in [("nope", "unknown suite 'nope'"), ("tiny@0", versions), ("tiny@x", versions)]:
         with pytest.raises(SmspaceError, match=said):
             get_suite(bad)
 
@@ -206,6 +207,26 @@ def test_a_bench_of_one_task_runs_only_it(tiny_bench, tmp_path):
     assert [p.name for p in (tmp_path / "tiny-v2/isomap").iterdir()] == ["grid6"]
     wrong = run_cmd(*args[:-4], "--task", "nope", "--out", tmp_path)
     assert wrong.returncode != 0 and "suite tiny-v2 has no task 'nope'" in wrong.stderr
+
+
+def test_a_walk_task_trains_and_scores_on_walks_and_its_result_verifies(tmp_path):
+    """tiny@3's grid-walk: the bench generates the task's walks (the -walk datasets, as smgen would),
+    a learned entry trains on them (its runs record the exploration as a term), isomap embeds them,
+    and both results verify on the leaderboard, which checks the walk datasets' ids and hashes."""
+    lake, out = tmp_path / "lake", tmp_path / "out"
+    args = ["smtrain", "bench", "tiny@3", "sensorimotor", "isomap", "--task", "grid-walk", "--lake", lake]
+    done = run_cmd(*args, "--out", out, "--workers", 2, timeout=600)
+    assert done.returncode == 0, done.stderr
+    made = sorted(p.parent.name for p in lake.glob("*/manifest.json"))
+    assert made == [f"grid-seed{w}-{m}-walk" for w in (0, 1) for m in ("MM", "MME")]
+    result = out / "tiny-v3/sensorimotor/grid-walk"
+    walk = {"kind": "walk", "length": 50, "step": 1.0}
+    assert json.loads((result / "bench.json").read_text())["task"]["exploration"] == walk
+    configs = [json.loads(p.read_text()) for p in result.rglob("config.json")]
+    assert len(configs) == 4 and all(c["exploration"] == walk for c in configs)
+    board = run_cmd("smtrain", "leaderboard", out, "--out", tmp_path / "board")
+    assert board.returncode == 0, board.stderr
+    assert len(json.loads((tmp_path / "board/leaderboard.json").read_text())["results"]) == 2
 
 
 def test_a_bench_dry_run_budgets_every_entry_on_every_task_and_writes_nothing(tiny_bench, tmp_path):

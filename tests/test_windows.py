@@ -5,12 +5,12 @@ resumes to the same bytes, and every window a run cannot have is refused before 
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import torch
 
-from smspace.common.errors import SmspaceError
 from smspace.train.config import TrainConfig
 from smspace.train.fit import fit, train_ensemble
 from smspace.train.run_dir import RunDir
@@ -121,9 +121,91 @@ def test_a_window_a_run_cannot_have_is_refused_before_anything_is_written(walks,
     assert named in result.output and not out.exists(), result.output
 
 
-def test_a_study_with_windows_is_refused():
-    from smspace.study.sweep import check_study_model
+WALK_STUDY = """
+[study]
+setup = "grid"
+modes = ["MME"]
+worlds = 2
+seed = 2
+transitions = 2000
+{exploration}
 
-    template = TrainConfig(dataset="", model="path-integrator", window=3, encoder_layers=[20])
-    with pytest.raises(SmspaceError, match="a study generates independent transitions, and windows need walks"):
-        check_study_model(template, "grid", 0)
+[train]
+model = "path-integrator"
+steps = 40
+eval_every = 20
+batch_size = 32
+{train}
+
+[run]
+workers = 1
+"""
+
+
+def walk_study(path: Path, exploration: str = 'exploration = "walk"\nwalk_length = 20', train: str = "window = 5"):
+    path.write_text(WALK_STUDY.format(exploration=exploration, train=train))
+    return path
+
+
+def test_a_study_of_walks_trains_windows_as_lone_runs_would(tmp_path):
+    """study.exploration = "walk": the study generates walks (the -walk datasets smgen would),
+    trains its runs on windows stacked, each as `fit` alone would, and records the exploration as
+    a term of its runs, so a study of transitions is refused in the same folder."""
+    lake, out = tmp_path / "lake", tmp_path / "out"
+    done = run_cmd("smtrain", "sweep", walk_study(tmp_path / "s.toml"), "--lake", lake, "--out", out, timeout=600)
+    assert done.returncode == 0, done.stderr
+    made = sorted(p.parent.name for p in lake.glob("*/manifest.json"))
+    assert made == ["grid-seed2-MME-walk", "grid-seed3-MME-walk"]
+    walk = ["--exploration", "walk", "--walk-length", 20, "--transitions", 2000]  # the study's words, as flags
+    made = smgen("generate", "--setup", "grid", "--mode", "MME", "--seed", 2, "--lake", tmp_path / "own", *walk)
+    assert made.exit_code == 0
+    own = json.loads((tmp_path / "own/grid-seed2-MME-walk/manifest.json").read_text())
+    study = json.loads((lake / "grid-seed2-MME-walk/manifest.json").read_text())
+    assert own["config_hash"] == study["config_hash"]  # the very dataset smgen generates
+
+    run = RunDir.open(out / "grid-seed2-MME-walk-nh3-seed2")
+    cfg = run.view.config
+    assert cfg.window == 5 and cfg.exploration == {"kind": "walk", "length": 20, "step": 1.0}
+    assert run.view.status().state == "finished"
+    alone = RunDir.create(tmp_path / "alone", replace(cfg, run_id="", sessions=[]), False)
+    fit(replace(cfg, run_id="", sessions=[]), alone)
+    assert_same_weights(weights(alone), weights(run), "MME")
+
+    before = (out / "study-file.json").read_bytes()
+    again = run_cmd("smtrain", "sweep", walk_study(tmp_path / "s.toml", "", "window = 1"), "--lake", lake,
+                    "--out", out, timeout=300)  # fmt: skip
+    failed_in_one_line(again)
+    assert "exploration" in again.stderr and (out / "study-file.json").read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("exploration", "train", "named"),
+    [
+        ("walk_length = 20", "window = 1", 'study.walk_length: is for walks: set exploration = "walk" too'),
+        ('exploration = "hop"', "window = 1", "study.exploration: 'hop' is not one of transitions, walk"),
+        ('exploration = "walk"\nwalk_step = 9', "window = 1", "study.walk_step: 9 is not a number in (0, 4.0]"),
+        ('exploration = "walk"\nwalk_length = 30', "window = 1", "must be multiples of the length"),
+        ('exploration = "walk"\nwalk_length = 20', "window = 21", "window: 21 steps do not fit in the study's"),
+        ("", "window = 5", 'windows need walks (study.exploration = "walk")'),
+    ],
+)
+def test_a_walk_study_a_run_cannot_have_is_refused_before_anything_is_written(tmp_path, exploration, train, named):
+    lake, out = tmp_path / "lake", tmp_path / "out"
+    done = run_cmd("smtrain", "sweep", walk_study(tmp_path / "s.toml", exploration, train), "--lake", lake,
+                   "--out", out, timeout=300)  # fmt: skip
+    failed_in_one_line(done)
+    assert named in done.stderr and not out.exists() and not lake.exists(), done.stderr
+
+
+def test_walk_and_transition_runs_of_one_world_are_never_one_study(walks):
+    """The exploration is a term (train/terms.py, rule 5): runs on a world's walks and on its
+    transitions differ in it, so a report or a sweep folder never pools them."""
+    from smspace.lake.dataset import Dataset
+    from smspace.train.terms import terms
+
+    plain, walk = TrainConfig(dataset=""), Dataset.open("grid-seed2-MME-walk", walks)
+    on_walks = plain.for_dataset(walk.store, walk.manifest)
+    sample = Dataset.open(str(SAMPLES / "grid-seed0-MME"))
+    on_transitions = plain.for_dataset(sample.store, sample.manifest)
+    assert terms(on_walks)["exploration"] == {"kind": "walk", "length": 20, "step": 1.0}
+    assert "exploration" not in terms(on_transitions) and "exploration" not in on_transitions.to_dict()

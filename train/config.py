@@ -78,6 +78,9 @@ class TrainConfig:
     dataset_transitions: int = 0  # its size: runs on datasets of other sizes are not one study
     setup: str = ""
     mode: str = ""
+    # how its agent explored (lake/exploration.py, the manifest's record): None for independent
+    # transitions; walks and transitions of one world are not one study
+    exploration: dict[str, Any] | None = None
     # the flags
     steps: int = flag(100_000, "Training steps.", minimum=1, maximum=10**10)
     batch_size: int = flag(100, "Transitions per step.", minimum=1, maximum=10**7)
@@ -160,11 +163,13 @@ class TrainConfig:
         return f"{self.dataset_id}-nh{self.n_h}-seed{self.seed}"
 
     def to_dict(self) -> dict[str, Any]:
-        """config.json's fields. `window` only when a run reads windows: a run of single transitions
-        keeps the bytes (and the terms) it had before windows existed."""
+        """config.json's fields. `window` only when a run reads windows, `exploration` only for a
+        walk: a run of single transitions keeps the bytes (and the terms) it had before either existed."""
         raw = asdict(self)
         if raw["window"] == 1:
             del raw["window"]
+        if raw["exploration"] is None:
+            del raw["exploration"]
         return raw
 
     @classmethod
@@ -172,9 +177,11 @@ class TrainConfig:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in raw.items() if k in known})
 
-    def for_setup(self, setup: str, transitions: int, encoder_layers: Sequence[int]) -> TrainConfig:
-        """This config for datasets of one setup and size: what a study's runs share; the encoder
-        the setup suggests unless one was given."""
+    def for_setup(
+        self, setup: str, transitions: int, encoder_layers: Sequence[int], exploration: dict[str, Any] | None = None
+    ) -> TrainConfig:
+        """This config for datasets of one setup, size and exploration: what a study's runs share;
+        the encoder the setup suggests unless one was given."""
         from smspace.train.model import plugin_record
 
         encoder = self.encoder_layers or encoder_layers
@@ -182,6 +189,7 @@ class TrainConfig:
             self,
             setup=setup,
             dataset_transitions=transitions,
+            exploration=exploration,
             encoder_layers=list(encoder),
             model_plugin=plugin_record(self.model),
         )
@@ -189,8 +197,9 @@ class TrainConfig:
     def for_dataset(self, folder: Store | Path, manifest) -> TrainConfig:
         """This config bound to a dataset: its identity, setup, mode and the encoder its manifest
         records for the setup's agent."""
+        explored = manifest.config.get("exploration")
         return replace(
-            self.for_setup(manifest.setup, manifest.transitions, default_encoder_layers(manifest)),
+            self.for_setup(manifest.setup, manifest.transitions, default_encoder_layers(manifest), explored),
             dataset=canonical(open_store(folder)),
             dataset_id=manifest.dataset_id,
             dataset_config_hash=manifest.config_hash,
