@@ -175,7 +175,9 @@ def test_a_study_of_walks_trains_windows_as_lone_runs_would(tmp_path):
     again = run_cmd("smtrain", "sweep", walk_study(tmp_path / "s.toml", "", "window = 1"), "--lake", lake,
                     "--out", out, timeout=300)  # fmt: skip
     failed_in_one_line(again)
-    assert "exploration" in again.stderr and (out / "study-file.json").read_bytes() == before
+    said = 'exploration {"kind": "walk", "length": 20, "step": 1.0} (asked null), window 5 (asked 1)'
+    assert said in again.stderr
+    assert (out / "study-file.json").read_bytes() == before
 
 
 @pytest.mark.parametrize(

@@ -127,7 +127,12 @@ def study_template(
         asked["lr_decay_steps"] = recorded["lr_decay_steps"]  # rule 3: the study keeps its schedule
     diff = differing(recorded, asked, ignore=("steps",))
     if diff:
-        shown = ", ".join(f"{k} {json.dumps(recorded.get(k))} (asked {json.dumps(asked.get(k))})" for k in diff)
+        unrecorded = {"window": 1}  # a term config.json leaves out at its default (TrainConfig.to_dict)
+
+        def value(terms_: dict[str, Any], k: str) -> str:
+            return json.dumps(terms_.get(k, unrecorded.get(k)))
+
+        shown = ", ".join(f"{k} {value(recorded, k)} (asked {value(asked, k)})" for k in diff)
         raise SmspaceError(
             f"{where} holds a study with other terms: {shown}; keep them, use another --out, or pass --overwrite"
         )
