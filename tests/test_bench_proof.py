@@ -22,6 +22,7 @@ from smspace.bench import evidence
 from smspace.bench.cli import parse_entry
 from smspace.bench.leaderboard import escape, markdown, row_names
 from smspace.bench.result import ScoredRow
+from smspace.bench.suite import SUITES
 from smspace.bench.verify import Result
 from smspace.common.errors import SmspaceError
 from smspace.lake.dataset import Dataset
@@ -192,7 +193,7 @@ FORGERIES: dict[str, tuple[str, Callable[[dict], Any], str]] = {
     "params a list": ("bench", lambda b: b["entry"].update(params=[1, 2]), "parameters are a table"),
     "params a string": ("bench", lambda b: b["entry"].update(params="width=64"), "parameters are a table"),
     "unknown suite": ("bench", lambda b: b.update(suite="nope"), "unknown suite 'nope'"),
-    "unknown version": ("bench", lambda b: b.update(version=9), "versions 1..2, not '9'"),
+    "unknown version": ("bench", lambda b: b.update(version=9), f"versions 1..{len(SUITES['tiny'])}, not '9'"),
     "version a string": ("bench", lambda b: b.update(version="1"), "version is '1', not a int"),
     "unknown task": ("bench", lambda b: b["task"].update(name="maze"), "has no task 'maze'"),
     "protocol key added": ("bench", lambda b: b["task"].update(extra=1), "(extra differ)"),
