@@ -22,6 +22,7 @@ from smspace.common.errors import SmspaceError
 from smspace.common.rerun_output import view_options
 from smspace.datagen.options import (
     check_seed_range,
+    exploration_options,
     first_seed_option,
     generator_workers_option,
     modes_option,
@@ -29,7 +30,7 @@ from smspace.datagen.options import (
     transitions_option,
     worlds_option,
 )
-from smspace.lake.exploration import MAX_LENGTH, MAX_STEP, Exploration
+from smspace.lake.exploration import Exploration
 from smspace.lake.manifest import dataset_id
 
 
@@ -43,22 +44,7 @@ from smspace.lake.manifest import dataset_id
 @generator_workers_option("--workers", "workers")
 @click.option("--shard-size", type=int, default=None, help="Transitions per shard [grid 32768, arm 8192].")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset generated with another config.")
-@click.option(
-    "--exploration",
-    type=click.Choice(["transitions", "walk"]),
-    default="transitions",
-    show_default=True,
-    help="Independent transitions (the paper's), or episodes of a bounded random walk in motor space.",
-)
-@click.option(
-    "--walk-length", type=click.IntRange(1, MAX_LENGTH), default=50, show_default=True, help="Steps per episode."
-)
-@click.option(
-    "--walk-step",
-    type=click.FloatRange(0, MAX_STEP, min_open=True),
-    default=None,
-    help="Per step: lattice levels (grid) or a standard deviation of the motor range (arm) [the setup's].",
-)
+@exploration_options
 @executor_option("the parts are drawn")
 @click.option("--gpus-per-task", type=click.FloatRange(0, 64), default=0.0, help="Ray: GPUs per part (SAPIEN on CUDA).")
 @click.option(

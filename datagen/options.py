@@ -14,6 +14,7 @@ from smspace.common.cli import MAX_WORKERS
 from smspace.common.completion import comma_list_completer
 from smspace.datagen.setups import SETUPS, setup_names
 from smspace.lake.bounds import SEED, TRANSITIONS, WORLDS, Bounded, world_seeds
+from smspace.lake.exploration import KINDS, MAX_LENGTH, MAX_STEP, WALK_LENGTH
 from smspace.lake.transitions import MODES
 
 SETUP_HELP = "; ".join(f"{s.name}: {s.description}" for s in SETUPS.values()) + "; or a setup a plugin registers"
@@ -78,3 +79,32 @@ def generator_workers_option(flag: str, dest: str) -> Callable:
 def check_seed_range(seed: int, worlds: int) -> None:
     """The last world's seed must still be a seed (both commands, before anything is written)."""
     world_seeds(seed, worlds, "--seed", "--worlds")
+
+
+def exploration_options(func: Callable) -> Callable:
+    """--exploration, --walk-length, --walk-step: how the generated datasets explore."""
+    options = [
+        click.option(
+            "--exploration",
+            type=click.Choice(KINDS),
+            default="transitions",
+            show_default=True,
+            help="Independent transitions (the paper's), or episodes of a bounded random walk in motor space.",
+        ),
+        click.option(
+            "--walk-length",
+            type=click.IntRange(1, MAX_LENGTH),
+            default=WALK_LENGTH,
+            show_default=True,
+            help="Steps per episode.",
+        ),
+        click.option(
+            "--walk-step",
+            type=click.FloatRange(0, MAX_STEP, min_open=True),
+            default=None,
+            help="Per step: lattice levels (grid) or a standard deviation of the motor range (arm) [the setup's].",
+        ),
+    ]
+    for option in reversed(options):
+        func = option(func)
+    return func

@@ -14,6 +14,7 @@ from typing import Any
 KINDS = ("transitions", "walk")
 WALK_SUFFIX = "-walk"
 MAX_LENGTH = 1 << 20  # steps in one episode
+WALK_LENGTH = 50  # steps per episode where none is given (smgen generate, smtrain sweep, a study file)
 MAX_STEP = 4.0  # the grid's widest lattice step (5 levels); the arm's is a standard deviation ≤ 2
 
 

@@ -35,6 +35,7 @@ from smspace.train.run_dir import RunDir
 @generation.worlds_option(default=50)
 @generation.first_seed_option("first_world", help="First world seed; a run's seed is its world's.")
 @generation.transitions_option()
+@generation.exploration_options
 @generation.generator_workers_option("--gen-workers", "gen_workers")
 @LAKE_OPTION
 @click.option(
@@ -68,6 +69,9 @@ def sweep(
     worlds,
     first_world,
     transitions,
+    exploration,
+    walk_length,
+    walk_step,
     gen_workers,
     lake,
     out,
@@ -110,7 +114,10 @@ def sweep(
     given = {name: getattr(template, name) for name in given_fields(ctx)}
     run = {"workers": workers or default_workers(), "gen_workers": gen_workers or default_workers(),
            "max_ensemble": max_ensemble, "executor": executor}  # fmt: skip
-    request = StudyRequest.from_flags(setup_name, mode_list, worlds, first_world, transitions, given, run)
+    walk = {"exploration": exploration}  # the walk flags given, as a study file's keys (checked alike)
+    walk |= {key: value for key, value in (("walk_length", walk_length), ("walk_step", walk_step))
+             if on_command_line(ctx, key)}  # fmt: skip
+    request = StudyRequest.from_flags(setup_name, mode_list, worlds, first_world, transitions, given, run, walk)
     if dry_run:  # budgeted as a study file is
         for line in plan_only(request, lake_store(lake), out, workers, overwrite):
             click.echo(line)
@@ -132,7 +139,8 @@ def _echo_finals(runs: list[RunDir]) -> None:
         click.echo(f"{display_name(run.url)}\t{json.dumps(shown)}")
 
 
-STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions", "max_ensemble")
+STUDY_FILE_KEYS = ("setup_name", "modes", "worlds", "first_world", "transitions", "exploration", "walk_length",
+                   "walk_step", "max_ensemble")  # fmt: skip
 
 
 def _study_command(ctx, study_file, overrides, lake, out, overwrite, executor, workers, gen_workers, dry_run) -> None:

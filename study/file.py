@@ -46,7 +46,7 @@ from smspace.common.cli import EXECUTORS, MAX_ENSEMBLE, MAX_WORKERS
 from smspace.common.differing import described
 from smspace.common.errors import SmspaceError
 from smspace.lake.bounds import SEED, TRANSITIONS, WORLDS, Bounded, world_seeds_problem
-from smspace.lake.exploration import KINDS, MAX_LENGTH, MAX_STEP, Exploration
+from smspace.lake.exploration import KINDS, MAX_LENGTH, MAX_STEP, WALK_LENGTH, Exploration
 from smspace.lake.records import STUDY_FILE
 from smspace.lake.transitions import MODES
 from smspace.train.config import TrainConfig, finite_positive, flag_fields
@@ -59,7 +59,6 @@ SECTIONS = ("study", "train", "grid", "pairs", "run")
 # [run] keys and their bounds: the same as the flags' (a million workers started a process per run)
 RUN_KEYS = {"workers": (1, MAX_WORKERS), "gen_workers": (1, MAX_WORKERS), "max_ensemble": (1, MAX_ENSEMBLE),
             "executor": None}  # fmt: skip
-WALK_LENGTH = 50  # smgen generate --walk-length's default
 TABLES = ("train", "grid", "pairs")
 EXPLORATION_DEFAULTS = {"exploration": "transitions", "walk_length": None, "walk_step": None}
 MAX_COMBINATIONS = 1000  # sub-studies in one file: each is a folder, a plan and a dry-run line
@@ -170,11 +169,18 @@ class StudyRequest:
     @classmethod
     def from_flags(
         cls, setup: str, modes: list[str], worlds: int, seed: int, transitions: int | None,
-        given: dict[str, Any], run: dict[str, Any],
+        given: dict[str, Any], run: dict[str, Any], walk: dict[str, Any] | None = None,
     ) -> StudyRequest:  # fmt: skip
         """`smtrain sweep --setup …`: the flags as the study they describe (no grid; `given`: the
-        training fields set on the command line, as a file's [train])."""
-        return cls(StudyFile("sweep", setup, modes, worlds, seed, transitions, given, {}, run), None, FLAGS)
+        training fields set on the command line, as a file's [train]; `walk`: the exploration
+        flags, as a file's [study] keys, checked as they are)."""
+
+        def bad(key: str, problem: str) -> SmspaceError:  # "study.walk_length" is --walk-length here
+            return SmspaceError(f"--{key.removeprefix('study.').replace('_', '-')}: {problem}")
+
+        explored = _exploration(walk or {}, bad)
+        study = StudyFile("sweep", setup, modes, worlds, seed, transitions, given, {}, run, **explored)
+        return cls(study, None, FLAGS)
 
     @classmethod
     def from_file(cls, path: Path | str, overrides: Sequence[str] = ()) -> StudyRequest:
@@ -385,7 +391,7 @@ def _exploration(study: dict[str, Any], bad) -> dict[str, Any]:
     found = {"exploration": kind, "walk_length": None, "walk_step": None}
     for key in ("walk_length", "walk_step"):
         if key in study and kind != "walk":
-            raise bad(f"study.{key}", 'is for walks: set exploration = "walk" too')
+            raise bad(f"study.{key}", 'is for walks only (exploration "walk")')
     if "walk_length" in study:
         found["walk_length"] = _integer(study["walk_length"], bad, "study.walk_length", 1, MAX_LENGTH)
     if "walk_step" in study:

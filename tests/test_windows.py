@@ -183,7 +183,7 @@ def test_a_study_of_walks_trains_windows_as_lone_runs_would(tmp_path):
 @pytest.mark.parametrize(
     ("exploration", "train", "named"),
     [
-        ("walk_length = 20", "window = 1", 'study.walk_length: is for walks: set exploration = "walk" too'),
+        ("walk_length = 20", "window = 1", 'study.walk_length: is for walks only (exploration "walk")'),
         ('exploration = "hop"', "window = 1", "study.exploration: 'hop' is not one of transitions, walk"),
         ('exploration = "walk"\nwalk_step = 9', "window = 1", "study.walk_step: 9 is not a number in (0, 4.0]"),
         ('exploration = "walk"\nwalk_length = 30', "window = 1", "must be multiples of the length"),
@@ -211,3 +211,23 @@ def test_walk_and_transition_runs_of_one_world_are_never_one_study(walks):
     on_transitions = plain.for_dataset(sample.store, sample.manifest)
     assert terms(on_walks)["exploration"] == {"kind": "walk", "length": 20, "step": 1.0}
     assert "exploration" not in terms(on_transitions) and "exploration" not in on_transitions.to_dict()
+
+
+def test_a_sweep_given_by_flags_generates_and_trains_walks(tmp_path):
+    """`smtrain sweep --exploration walk …` is the study file's exploration keys as flags, the
+    same flags (datagen/options.py) and checks as smgen generate's."""
+    lake, out = tmp_path / "lake", tmp_path / "out"
+    args = ["--setup", "grid", "--modes", "MME", "--worlds", 1, "--seed", 2, "--transitions", 2000, "--lake", lake]
+    walk = ["--exploration", "walk", "--walk-length", 20, "--model", "path-integrator", "--window", 5]
+    train = ["--steps", 20, "--eval-every", 20, "--batch-size", 32, "--out", out]
+    done = run_cmd("smtrain", "sweep", *args, *walk, *train, timeout=300)
+    assert done.returncode == 0, done.stderr
+    cfg = RunDir.open(out / "grid-seed2-MME-walk-nh3-seed2").view.config
+    assert cfg.window == 5 and cfg.exploration == {"kind": "walk", "length": 20, "step": 1.0}
+
+    alone = smtrain("sweep", *args, "--walk-length", 20, *train[:-1], tmp_path / "other")
+    failed_in_one_line(alone)
+    assert '--walk-length: is for walks only (exploration "walk")' in alone.output
+    beside = smtrain("sweep", walk_study(tmp_path / "s.toml"), "--exploration", "walk", "--out", tmp_path / "o")
+    failed_in_one_line(beside)
+    assert "--exploration: set in the study file" in beside.output
