@@ -26,8 +26,12 @@ def file_of(world: int, mode: str, step: int | None = None) -> str:
 
 
 def npy_bytes(h: np.ndarray) -> bytes:
+    """h as float32 where that loses nothing (a network's h is float32, whatever carried it since),
+    else float64 (isomap's): half the bytes for every learned entry, the same values read back."""
+    h = np.ascontiguousarray(h, np.float64)
+    single = h.astype(np.float32)
     out = io.BytesIO()
-    np.save(out, np.ascontiguousarray(h, np.float64), allow_pickle=False)
+    np.save(out, single if np.array_equal(single.astype(np.float64), h) else h, allow_pickle=False)
     return out.getvalue()
 
 

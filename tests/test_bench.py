@@ -224,6 +224,10 @@ def test_a_walk_task_trains_and_scores_on_walks_and_its_result_verifies(tmp_path
     assert json.loads((result / "bench.json").read_text())["task"]["exploration"] == walk
     configs = [json.loads(p.read_text()) for p in result.rglob("config.json")]
     assert len(configs) == 4 and all(c["exploration"] == walk for c in configs)
+    # a network's h is float32 and stored so (half the bytes); isomap's needs float64
+    for entry, dtype in (("sensorimotor", np.float32), ("isomap", np.float64)):
+        stored = sorted((out / f"tiny-v3/{entry}/grid-walk/evidence").glob("*.npy"))
+        assert stored and all(np.load(p).dtype == dtype for p in stored), entry
     board = run_cmd("smtrain", "leaderboard", out, "--out", tmp_path / "board")
     assert board.returncode == 0, board.stderr
     assert len(json.loads((tmp_path / "board/leaderboard.json").read_text())["results"]) == 2
