@@ -169,3 +169,23 @@ def board_scalars(run: Path) -> dict[str, list[tuple[int, float]]]:
     events = EventAccumulator(str(run))
     events.Reload()
     return {tag: [(e.step, e.value) for e in events.Scalars(tag)] for tag in events.Tags()["scalars"]}
+
+
+def weights(run) -> dict:
+    """A run folder's checkpointed weights (a RunDir's), as torch tensors."""
+    import torch
+
+    return torch.load(run.view.local_path / "checkpoint.pt", weights_only=True)["model"]
+
+
+class StopAt:
+    """A sink that interrupts training once the run folder has committed step `step`."""
+
+    def __init__(self, step: int):
+        self.step = step
+
+    def on_evaluation(self, evaluation) -> None:
+        if evaluation.step == self.step:
+            raise KeyboardInterrupt
+
+    def on_finish(self, step: int, message: str) -> None: ...

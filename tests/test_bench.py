@@ -22,7 +22,7 @@ from smspace.train.engine import build
 from smspace.train.fit import fit, train_ensemble
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES, run_cmd
+from .conftest import SAMPLES, StopAt, run_cmd, weights
 from .numerics import assert_same_weights
 
 BASELINES = [
@@ -39,10 +39,6 @@ BASELINES = [
 def config(model: str, seed: int = 3, mode: str = "MM", steps: int = 40) -> TrainConfig:
     ds = SAMPLES / f"grid-seed0-{mode}"
     return TrainConfig(dataset=str(ds), dataset_id=ds.name, steps=steps, eval_every=20, seed=seed, model=model)
-
-
-def weights(run: RunDir) -> dict[str, torch.Tensor]:
-    return torch.load(run.view.local_path / "checkpoint.pt", weights_only=True)["model"]
 
 
 @pytest.mark.parametrize("model", BASELINES)
@@ -351,19 +347,6 @@ def test_a_models_noise_is_the_runs_own_and_repeats_from_its_seed():
     others = [step_noise([3], 8, 0, 5, 6, cpu), step_noise([3], 7, 1, 5, 6, cpu), both[1:]]
     assert all(not torch.allclose(both[:1], o) for o in others)
     assert abs(float(step_noise([0], 1, 0, 4000, 8, cpu).std()) - 1) < 0.05
-
-
-class StopAt:
-    """A sink that interrupts training once the run folder has committed step `step`."""
-
-    def __init__(self, step: int):
-        self.step = step
-
-    def on_evaluation(self, evaluation) -> None:
-        if evaluation.step == self.step:
-            raise KeyboardInterrupt
-
-    def on_finish(self, step: int, message: str) -> None: ...
 
 
 @pytest.mark.parametrize("model", ["beta-vae", "latent-forward"])

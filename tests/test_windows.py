@@ -15,9 +15,8 @@ from smspace.train.config import TrainConfig
 from smspace.train.fit import fit, train_ensemble
 from smspace.train.run_dir import RunDir
 
-from .conftest import SAMPLES, failed_in_one_line, run_cmd, short_fit, smgen, smtrain
+from .conftest import SAMPLES, StopAt, failed_in_one_line, run_cmd, short_fit, smgen, smtrain, weights
 from .numerics import assert_same_weights
-from .test_bench import StopAt, weights
 
 WALK = ["--exploration", "walk", "--walk-length", "20", "--transitions", "2000", "--shard-size", "1000"]
 
