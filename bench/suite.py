@@ -58,10 +58,10 @@ class Task:
 
         plugin = setup_plugin(self.setup)
         record = plugin.record() if plugin is not None else None  # a plugin's code is part of its datasets'
-        walk = self.explored.record()
+        walk, shard = self.explored.record(), self.shard_size
         return {
             self.dataset_of(seed, mode): GenConfig(
-                self.setup, mode, seed, self.transitions, self.shard_size, plugin=record, exploration=walk
+                self.setup, mode, seed, self.transitions, shard, plugin=record, exploration=walk
             ).config_hash
             for seed in self.world_seeds
             for mode in self.modes
